@@ -1,0 +1,64 @@
+//! The library's error type: one enum whose variants carry the file and the problem, so the binary
+//! can print a single line (`FILE: problem`) and exit non-zero.
+
+use std::path::PathBuf;
+
+/// Everything that can go wrong in relief's library code.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: unknown DEM format ({hint}); pass --format to choose one", path.display())]
+    UnknownFormat { path: PathBuf, hint: String },
+    #[error("{}: {problem}", path.display())]
+    BadDem { path: PathBuf, problem: String },
+    #[error("{}: unsupported {what}", path.display())]
+    Unsupported { path: PathBuf, what: String },
+    #[error("{}: no valid sample (every sample is nodata, void or NaN)", path.display())]
+    NoValidSamples { path: PathBuf },
+    #[error("{}: not a relief terrain file (bad magic)", path.display())]
+    BadMagic { path: PathBuf },
+    #[error("{}: terrain file version {found} is not supported (this build reads version {supported})", path.display())]
+    BadVersion { path: PathBuf, found: u32, supported: u32 },
+    #[error("{}: corrupt header: {problem}", path.display())]
+    BadHeader { path: PathBuf, problem: String },
+    #[error("{}: truncated: expected {expected} bytes, found {found}", path.display())]
+    Truncated { path: PathBuf, expected: u64, found: u64 },
+    #[error("{}: {which} checksum mismatch (stored {stored:016x}, computed {computed:016x})", path.display())]
+    Checksum { path: PathBuf, which: &'static str, stored: u64, computed: u64 },
+    #[error("{}: grid too large: {width} x {height} needs more than 2^{max_n} + 1 posts per side", path.display())]
+    GridTooLarge { path: PathBuf, width: u64, height: u64, max_n: u32 },
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    #[error("interrupted")]
+    Interrupted,
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    /// Wraps an I/O error with the path it concerns.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io { path: path.into(), source }
+    }
+
+    /// A DEM that could be opened but whose content is wrong.
+    pub fn bad_dem(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
+        Error::BadDem { path: path.into(), problem: problem.into() }
+    }
+}
+
+/// Extension to attach a path to `std::io::Result`.
+pub trait IoContext<T> {
+    fn at(self, path: &std::path::Path) -> Result<T>;
+}
+
+impl<T> IoContext<T> for std::io::Result<T> {
+    fn at(self, path: &std::path::Path) -> Result<T> {
+        self.map_err(|e| Error::io(path, e))
+    }
+}

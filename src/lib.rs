@@ -1,0 +1,15 @@
+//! relief: a GPU-resident terrain renderer for regular-grid height fields.
+//!
+//! The terrain core follows Lindstrom & Pascucci, *Visualization of Large Terrains Made Easy*
+//! (2001): DEMs are converted into memory-mapped files whose vertex records (height, nested error,
+//! bounding radius) are stored in a hierarchical index layout. See `ARCHITECTURE.md`.
+
+#[cfg(target_endian = "big")]
+compile_error!("relief's terrain files are little-endian and mapped in place; big-endian targets are not supported");
+
+pub mod dem;
+pub mod error;
+pub mod hierarchy;
+pub mod layout;
+
+pub use error::{Error, Result};
