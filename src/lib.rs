@@ -13,3 +13,11 @@ pub mod hierarchy;
 pub mod layout;
 
 pub use error::{Error, Result};
+pub mod cancel;
+pub mod convert;
+pub mod fill;
+pub mod format;
+pub mod inspect;
+pub mod mem;
+pub mod preprocess;
+pub mod progress;

@@ -1,0 +1,355 @@
+//! DEM → terrain file conversion with bounded anonymous memory.
+//!
+//! Steps: stream the DEM into a memory-mapped row-major scratch grid of records (file-backed, so
+//! the kernel may page it out; anonymous memory stays O(row)), fill voids, pad to (2^n + 1)² by
+//! edge replication, compute nested errors and radii level by level, gather the records into the
+//! layout's order in a temporary output file, checksum, write the header, sync, and rename over
+//! the final name. For `row-major` the output itself serves as the scratch grid. An error or a
+//! Ctrl-C at any point drops the temporary files, so the final name holds either the old file or
+//! the complete new one.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use memmap2::MmapMut;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::cancel;
+use crate::dem::{self, DemFormat, Run, SourceSpacing};
+use crate::error::{Error, IoContext, Result};
+use crate::fill;
+use crate::format::{self, Header, Record, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED, PAYLOAD_OFFSET, RECORD_BYTES};
+use crate::hierarchy::{Grid, MAX_N};
+use crate::layout::{AnyLayout, Layout, LayoutKind};
+use crate::mem::AnonSampler;
+use crate::preprocess;
+use crate::progress::Progress;
+
+/// Mean Earth radius (IUGG), used to turn degrees into metres at the grid's centre latitude.
+pub const EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+/// What `relief convert` was asked to do.
+#[derive(Clone, Debug)]
+pub struct ConvertOptions {
+    pub layout: LayoutKind,
+    /// Tile side for `tiled` (power of two); `None` picks about one 4 KiB page per tile.
+    pub tile: Option<u32>,
+    /// Post spacing in metres (x, y); overrides what the file says.
+    pub spacing_m: Option<[f64; 2]>,
+    /// Heights in metres = source value × z_scale + z_offset.
+    pub z_scale: f64,
+    pub z_offset: f64,
+    pub format: Option<DemFormat>,
+    /// Where the scratch grid lives (default: beside the output).
+    pub scratch_dir: Option<PathBuf>,
+    pub progress: Progress,
+}
+
+impl ConvertOptions {
+    pub fn new(layout: LayoutKind) -> Self {
+        ConvertOptions {
+            layout,
+            tile: None,
+            spacing_m: None,
+            z_scale: 1.0,
+            z_offset: 0.0,
+            format: None,
+            scratch_dir: None,
+            progress: Progress::hidden(),
+        }
+    }
+}
+
+/// Seconds spent in each step.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StepSeconds {
+    pub read: f64,
+    pub fill: f64,
+    pub bounds: f64,
+    pub layout: f64,
+    pub write: f64,
+}
+
+/// What a conversion did, for `--json` and benchmarks.
+#[derive(Clone, Debug, Serialize)]
+pub struct ConvertReport {
+    pub input: PathBuf,
+    pub output: PathBuf,
+    pub format: String,
+    pub source_width: u32,
+    pub source_height: u32,
+    pub grid_size: u32,
+    pub layout: String,
+    pub records: u64,
+    pub vertices: u64,
+    pub spacing_m: [f64; 2],
+    pub spacing_source: &'static str,
+    pub nodata_filled: u64,
+    pub z_min: f64,
+    pub z_max: f64,
+    pub file_bytes: u64,
+    pub seconds: f64,
+    pub steps: StepSeconds,
+    pub vertices_per_s: f64,
+    pub peak_rss_anon_bytes: u64,
+}
+
+/// A writable mapping of a fresh file, used for the scratch grid and the output.
+struct MappedFile {
+    file: File,
+    map: MmapMut,
+}
+
+impl MappedFile {
+    fn create(file: File, len: u64, path: &Path) -> Result<MappedFile> {
+        file.set_len(len).at(path)?;
+        // SAFETY: the file was just created by this process (a temporary or unlinked file nobody
+        // else knows of) and sized above; it is mapped once and lives as long as the map.
+        let map = unsafe { MmapMut::map_mut(&file) }.at(path)?;
+        Ok(MappedFile { file, map })
+    }
+
+    fn records_mut(&mut self, offset: usize, count: usize) -> &mut [Record] {
+        bytemuck::cast_slice_mut(&mut self.map[offset..offset + count * RECORD_BYTES as usize])
+    }
+}
+
+/// Spacing in metres and how it was obtained.
+fn resolve_spacing(opts: &ConvertOptions, source: Option<SourceSpacing>) -> ([f64; 2], &'static str, u32, f64, [f64; 2]) {
+    let nan2 = [f64::NAN, f64::NAN];
+    let (lat, deg) = match source {
+        Some(SourceSpacing::Degrees { x, y, centre_lat_deg }) => (centre_lat_deg, [x, y]),
+        _ => (f64::NAN, nan2),
+    };
+    let geo_flag = if lat.is_nan() { 0 } else { FLAG_GEOGRAPHIC };
+    if let Some(s) = opts.spacing_m {
+        return (s, "option", geo_flag, lat, deg);
+    }
+    match source {
+        Some(SourceSpacing::Metres { x, y }) => ([x.abs(), y.abs()], "file", 0, f64::NAN, nan2),
+        Some(SourceSpacing::Degrees { x, y, centre_lat_deg }) => {
+            let m_per_deg = EARTH_RADIUS_M * std::f64::consts::PI / 180.0;
+            let sx = x.abs() * m_per_deg * centre_lat_deg.to_radians().cos();
+            let sy = y.abs() * m_per_deg;
+            ([sx, sy], "file (degrees converted at the centre latitude)", FLAG_GEOGRAPHIC, centre_lat_deg, [x.abs(), y.abs()])
+        }
+        None => ([1.0, 1.0], "assumed 1 m (the file does not say; pass --spacing)", FLAG_SPACING_ASSUMED, f64::NAN, nan2),
+    }
+}
+
+fn temp_in(dir: &Path, output: &Path) -> Result<tempfile::NamedTempFile> {
+    let name = output.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    tempfile::Builder::new()
+        .prefix(&format!(".{name}."))
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(|e| Error::io(output, e))
+}
+
+/// Converts the DEM at `input` into a terrain file at `output`.
+pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<ConvertReport> {
+    let started = Instant::now();
+    let sampler = AnonSampler::start();
+    let mut steps = StepSeconds::default();
+
+    if opts.z_scale == 0.0 || !opts.z_scale.is_finite() || !opts.z_offset.is_finite() {
+        return Err(Error::InvalidArgument(format!("--z-scale {} / --z-offset {} must be finite, scale non-zero", opts.z_scale, opts.z_offset)));
+    }
+    if let Some([sx, sy]) = opts.spacing_m {
+        if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0) {
+            return Err(Error::InvalidArgument(format!("--spacing must be positive metres, got {sx},{sy}")));
+        }
+    }
+
+    let mut source = dem::open(input, opts.format)?;
+    let info = source.info().clone();
+    let (width, height) = (info.width, info.height);
+    let grid = Grid::covering(width as u64, height as u64).ok_or(Error::GridTooLarge {
+        path: input.into(),
+        width: width as u64,
+        height: height as u64,
+        max_n: MAX_N,
+    })?;
+    let layout = AnyLayout::new(opts.layout, grid, opts.tile.unwrap_or(0), RECORD_BYTES).map_err(Error::InvalidArgument)?;
+    let (spacing_m, spacing_source, flags, centre_lat, spacing_deg) = resolve_spacing(opts, info.spacing);
+
+    let out_dir = match output.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    if output.is_dir() {
+        return Err(Error::io(output, std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a directory")));
+    }
+    let side = grid.size() as usize;
+    let vertices = grid.vertices() as usize;
+    let payload_bytes = layout.records() * RECORD_BYTES as u64;
+    let out_tmp = temp_in(&out_dir, output)?;
+    let mut out = MappedFile::create(out_tmp.reopen().at(output)?, PAYLOAD_OFFSET + payload_bytes, output)?;
+
+    let row_major = opts.layout == LayoutKind::RowMajor;
+    let mut scratch = if row_major {
+        None
+    } else {
+        let dir = opts.scratch_dir.clone().unwrap_or_else(|| out_dir.clone());
+        let file = tempfile::tempfile_in(&dir).at(&dir)?;
+        Some(MappedFile::create(file, vertices as u64 * RECORD_BYTES as u64, &dir)?)
+    };
+
+    // 1. Read the DEM into the row-major grid (grid row y = height − 1 − image row).
+    let t = Instant::now();
+    let bar = opts.progress.bar("read", width as u64 * height as u64, "samples");
+    let (mut nan_count, mut z_min, mut z_max) = (0u64, f64::INFINITY, f64::NEG_INFINITY);
+    {
+        let grid_records: &mut [Record] = match scratch.as_mut() {
+            Some(s) => s.records_mut(0, vertices),
+            None => out.records_mut(PAYLOAD_OFFSET as usize, vertices),
+        };
+        let (z_scale, z_offset) = (opts.z_scale, opts.z_offset);
+        source.read(&mut |run: Run<'_>| {
+            cancel::check()?;
+            let end = run.x0 as u64 + run.values.len() as u64;
+            if run.row >= height || end > width as u64 {
+                return Err(Error::bad_dem(input, format!("reader produced samples outside {width}x{height} (row {}, columns {}..{end})", run.row, run.x0)));
+            }
+            let y = (height - 1 - run.row) as usize;
+            let dst = &mut grid_records[y * side + run.x0 as usize..y * side + end as usize];
+            for (r, &v) in dst.iter_mut().zip(run.values) {
+                let z = v * z_scale + z_offset;
+                if z.is_finite() {
+                    z_min = z_min.min(z);
+                    z_max = z_max.max(z);
+                    r.z = z as f32;
+                } else {
+                    nan_count += 1;
+                    r.z = f32::NAN;
+                }
+            }
+            bar.inc(run.values.len() as u64);
+            Ok(())
+        })?;
+        bar.finish_and_clear();
+        steps.read = t.elapsed().as_secs_f64();
+        if z_min > z_max {
+            return Err(Error::NoValidSamples { path: input.into() });
+        }
+
+        // 2. Fill voids and pad.
+        let t = Instant::now();
+        let filled = if nan_count > 0 { fill::fill_voids(grid_records, side, width as usize, height as usize) } else { 0 };
+        debug_assert_eq!(filled, nan_count);
+        fill::pad(grid_records, side, width as usize, height as usize);
+        steps.fill = t.elapsed().as_secs_f64();
+        cancel::check()?;
+
+        // 3. Nested errors and radii.
+        let t = Instant::now();
+        let bar = opts.progress.bar("bounds", vertices as u64, "vertices");
+        preprocess::compute_bounds(grid, spacing_m, grid_records, &|k| bar.inc(k), &cancel::check)?;
+        bar.finish_and_clear();
+        steps.bounds = t.elapsed().as_secs_f64();
+    }
+
+    // 4. Gather into the layout's order (unused slots stay zero from the sparse file).
+    let t = Instant::now();
+    if let Some(s) = scratch.as_mut() {
+        let grid_records: &[Record] = s.records_mut(0, vertices);
+        let records = layout.records() as usize;
+        let bar = opts.progress.bar("layout", records as u64, "records");
+        let dst = out.records_mut(PAYLOAD_OFFSET as usize, records);
+        gather(&layout, grid_records, side, dst, &|k| bar.inc(k))?;
+        bar.finish_and_clear();
+    }
+    drop(scratch);
+    steps.layout = t.elapsed().as_secs_f64();
+
+    // 5. Checksum, header, sync, rename.
+    let t = Instant::now();
+    let payload_checksum = format::payload_checksum(&out.map[PAYLOAD_OFFSET as usize..]);
+    let header = Header {
+        version: format::VERSION,
+        layout: layout.kind(),
+        layout_param: layout.param(),
+        record_format: format::RECORD_FORMAT_F32,
+        record_bytes: RECORD_BYTES,
+        n: grid.n(),
+        flags,
+        valid_window: [0, 0, width, height],
+        source_format: DemFormat::ALL.iter().position(|f| *f == info.format).unwrap_or(0) as u32,
+        records: layout.records(),
+        payload_offset: PAYLOAD_OFFSET,
+        payload_bytes,
+        spacing_m,
+        z_scale: opts.z_scale,
+        z_offset: opts.z_offset,
+        z_min,
+        z_max,
+        nodata_filled: nan_count,
+        source_centre_lat_deg: centre_lat,
+        source_spacing_deg: spacing_deg,
+        payload_checksum,
+    };
+    out.map[..format::HEADER_BYTES].copy_from_slice(&header.encode());
+    cancel::check()?;
+    out.map.flush().at(output)?;
+    out.file.sync_all().at(output)?;
+    drop(out);
+    out_tmp.persist(output).map_err(|e| Error::io(output, e.error))?;
+    if let Ok(dir) = File::open(&out_dir) {
+        let _ = dir.sync_all(); // make the rename durable where the platform allows
+    }
+    steps.write = t.elapsed().as_secs_f64();
+
+    let seconds = started.elapsed().as_secs_f64();
+    Ok(ConvertReport {
+        input: input.into(),
+        output: output.into(),
+        format: info.format.name().into(),
+        source_width: width,
+        source_height: height,
+        grid_size: grid.size(),
+        layout: layout.kind().name().into(),
+        records: layout.records(),
+        vertices: grid.vertices(),
+        spacing_m,
+        spacing_source,
+        nodata_filled: nan_count,
+        z_min,
+        z_max,
+        file_bytes: PAYLOAD_OFFSET + payload_bytes,
+        seconds,
+        steps,
+        vertices_per_s: grid.vertices() as f64 / seconds,
+        peak_rss_anon_bytes: sampler.finish(),
+    })
+}
+
+/// Writes `dst[i] = grid[coords(i)]` for every used slot, in parallel chunks of the output.
+fn gather(layout: &AnyLayout, grid: &[Record], side: usize, dst: &mut [Record], progress: &(dyn Fn(u64) + Sync)) -> Result<()> {
+    struct Gather<'a> {
+        grid: &'a [Record],
+        side: usize,
+        dst: &'a mut [Record],
+        progress: &'a (dyn Fn(u64) + Sync),
+    }
+    impl crate::layout::LayoutVisitor for Gather<'_> {
+        type Output = Result<()>;
+        fn visit<L: Layout>(self, layout: &L) -> Result<()> {
+            const CHUNK: usize = 1 << 16;
+            let (grid, side) = (self.grid, self.side);
+            self.dst.par_chunks_mut(CHUNK).enumerate().try_for_each(|(c, chunk)| {
+                cancel::check()?;
+                let base = (c * CHUNK) as u64;
+                for (k, r) in chunk.iter_mut().enumerate() {
+                    if let Some((x, y)) = layout.coords(base + k as u64) {
+                        *r = grid[y as usize * side + x as usize];
+                    }
+                }
+                (self.progress)(chunk.len() as u64);
+                Ok(())
+            })
+        }
+    }
+    layout.visit(Gather { grid, side, dst, progress })
+}

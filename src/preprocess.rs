@@ -1,0 +1,255 @@
+//! Nested object-space errors and bounding-sphere radii, bottom-up (Lindstrom & Pascucci 2001, §4).
+//!
+//! For vertex i the raw error δ_i is the vertical distance between its height and the mean height of
+//! the edge it bisects. Nesting makes the active test monotone (a parent is active whenever a child
+//! is), so top-down refinement never cracks:
+//!   δ_i ← max(δ_i, δ_j) and r_i ← max(‖p_i − p_j‖ + r_j) over the DAG children j (r = 0 at level 1).
+//! Corners and the centre are always active: their error is +∞.
+//!
+//! The computation runs level by level over a row-major grid of [`Record`]s (a mapped scratch file
+//! during conversion), rows of one level in parallel. Values are computed in f64 and stored in f32
+//! rounded *up*, so the stored nesting inequalities hold exactly when re-evaluated the same way
+//! ([`nesting_violation`], used by `verify`).
+
+use rayon::prelude::*;
+
+use crate::error::Result;
+use crate::format::Record;
+use crate::hierarchy::{Grid, VertexKind};
+
+/// Rounds to the nearest f32 that is not below `v` (so stored bounds stay conservative).
+#[inline]
+pub fn f32_up(v: f64) -> f32 {
+    let f = v as f32;
+    if (f as f64) < v {
+        f.next_up()
+    } else {
+        f
+    }
+}
+
+/// Euclidean distance in metres between two grid posts with heights.
+#[inline(always)]
+pub fn distance_m(spacing_m: [f64; 2], a: (u32, u32, f32), b: (u32, u32, f32)) -> f64 {
+    let dx = (a.0 as f64 - b.0 as f64) * spacing_m[0];
+    let dy = (a.1 as f64 - b.1 as f64) * spacing_m[1];
+    let dz = a.2 as f64 - b.2 as f64;
+    (dx * dx + dy * dy + dz * dz).sqrt()
+}
+
+/// Raw vertical error of `(x, y)` against the midpoint of the edge it bisects.
+#[inline(always)]
+pub fn raw_error(z: f32, za: f32, zb: f32) -> f64 {
+    (z as f64 - 0.5 * (za as f64 + zb as f64)).abs()
+}
+
+/// Row-major grid of records shared across threads during one level.
+///
+/// Within a level every vertex is written by exactly one task (tasks own whole rows), and the
+/// records read are those of finer levels (children, finished) and heights (not written in this
+/// phase) — never a record of the level being written. That is what makes the raw accesses sound.
+struct SharedRows {
+    ptr: *mut Record,
+    side: usize,
+}
+unsafe impl Send for SharedRows {}
+unsafe impl Sync for SharedRows {}
+
+impl SharedRows {
+    #[inline(always)]
+    fn get(&self, x: u32, y: u32) -> Record {
+        // SAFETY: in bounds (callers pass grid positions); see the type's note on aliasing.
+        unsafe { self.ptr.add(y as usize * self.side + x as usize).read() }
+    }
+    #[inline(always)]
+    fn set_bounds(&self, x: u32, y: u32, error: f32, radius: f32) {
+        // SAFETY: as above; only the error and radius fields are written.
+        unsafe {
+            let p = self.ptr.add(y as usize * self.side + x as usize);
+            std::ptr::addr_of_mut!((*p).error).write(error);
+            std::ptr::addr_of_mut!((*p).radius).write(radius);
+        }
+    }
+}
+
+/// The nested error and radius of `(x, y)` from its own raw error and its children's records.
+#[inline(always)]
+fn nested(grid: Grid, spacing_m: [f64; 2], get: impl Fn(u32, u32) -> Record, x: u32, y: u32) -> (f64, f64) {
+    let me = get(x, y);
+    let (mut err, mut rad) = match grid.split_edge(x, y) {
+        Some([a, b]) => (raw_error(me.z, get(a.0, a.1).z, get(b.0, b.1).z), 0.0f64),
+        None => (f64::INFINITY, 0.0),
+    };
+    let (children, count) = grid.dag_children(x, y);
+    for &(cx, cy) in &children[..count] {
+        let c = get(cx, cy);
+        err = err.max(c.error as f64);
+        rad = rad.max(distance_m(spacing_m, (x, y, me.z), (cx, cy, c.z)) + c.radius as f64);
+    }
+    (err, rad)
+}
+
+/// Computes error and radius for every vertex of a row-major `grid` whose heights are set.
+/// `progress` is called with the number of vertices finished after each row batch.
+pub fn compute_bounds(
+    grid: Grid,
+    spacing_m: [f64; 2],
+    records: &mut [Record],
+    progress: &(dyn Fn(u64) + Sync),
+    check_cancel: &(dyn Fn() -> Result<()> + Sync),
+) -> Result<()> {
+    let side = grid.size();
+    assert_eq!(records.len() as u64, grid.vertices(), "row-major grid expected");
+    let shared = SharedRows { ptr: records.as_mut_ptr(), side: side as usize };
+    let centre = grid.centre();
+    for level in 1..=grid.levels() {
+        // Rows holding vertices of this level and, per row, the first x and the x stride.
+        let odd = level % 2 == 1;
+        let step = 1u32 << ((level - 1) / 2);
+        let rows: Vec<u32> = if odd { (0..side).step_by(step as usize).collect() } else { (step..side).step_by(2 * step as usize).collect() };
+        rows.par_iter().try_for_each(|&y| -> Result<()> {
+            check_cancel()?;
+            // Edge midpoints: on rows y/step even they sit at odd multiples of step; on odd rows at
+            // even multiples. Square centres: odd multiples on odd rows.
+            let x0 = if odd && (y / step) % 2 == 1 { 0 } else { step };
+            let mut count = 0u64;
+            let mut x = x0;
+            while x < side {
+                debug_assert!(matches!(
+                    grid.kind(x, y),
+                    VertexKind::EdgeMidpoint { .. } | VertexKind::SquareCentre { .. }
+                ));
+                let (mut err, rad) = nested(grid, spacing_m, |a, b| shared.get(a, b), x, y);
+                if (x, y) == centre {
+                    err = f64::INFINITY;
+                }
+                shared.set_bounds(x, y, f32_up(err), f32_up(rad));
+                count += 1;
+                x += 2 * step;
+            }
+            progress(count);
+            Ok(())
+        })?;
+    }
+    for (x, y) in grid.corners() {
+        shared.set_bounds(x, y, f32::INFINITY, 0.0);
+    }
+    Ok(())
+}
+
+/// Checks the stored bounds of `(x, y)` against its raw error and its children, recomputed exactly
+/// as [`compute_bounds`] does. Returns a description of the first violated inequality.
+pub fn nesting_violation(
+    grid: Grid,
+    spacing_m: [f64; 2],
+    get: impl Fn(u32, u32) -> Record,
+    x: u32,
+    y: u32,
+) -> Option<String> {
+    let me = get(x, y);
+    if !me.z.is_finite() {
+        return Some(format!("({x}, {y}): height {} is not finite", me.z));
+    }
+    if grid.kind(x, y) == VertexKind::Corner || (x, y) == grid.centre() {
+        if me.error != f32::INFINITY {
+            return Some(format!("({x}, {y}): corner/centre error {} is not +inf", me.error));
+        }
+    }
+    if !(me.radius >= 0.0) || me.error.is_nan() {
+        return Some(format!("({x}, {y}): error {} / radius {} invalid", me.error, me.radius));
+    }
+    if let Some([a, b]) = grid.split_edge(x, y) {
+        let raw = raw_error(me.z, get(a.0, a.1).z, get(b.0, b.1).z);
+        if (me.error as f64) < raw {
+            return Some(format!("({x}, {y}): error {} below its raw error {raw}", me.error));
+        }
+    }
+    let (children, count) = grid.dag_children(x, y);
+    for &(cx, cy) in &children[..count] {
+        let c = get(cx, cy);
+        if me.error < c.error {
+            return Some(format!("({x}, {y}): error {} below child ({cx}, {cy})'s {}", me.error, c.error));
+        }
+        let need = distance_m(spacing_m, (x, y, me.z), (cx, cy, c.z)) + c.radius as f64;
+        if (me.radius as f64) < need {
+            return Some(format!(
+                "({x}, {y}): radius {} does not contain child ({cx}, {cy})'s sphere ({need})",
+                me.radius
+            ));
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid_with(n: u32, f: impl Fn(u32, u32) -> f32) -> (Grid, Vec<Record>) {
+        let g = Grid::new(n).unwrap();
+        let s = g.size();
+        let recs = (0..s)
+            .flat_map(|y| (0..s).map(move |x| (x, y)))
+            .map(|(x, y)| Record { z: f(x, y), error: 0.0, radius: 0.0 })
+            .collect();
+        (g, recs)
+    }
+
+    fn run(g: Grid, spacing: [f64; 2], recs: &mut [Record]) {
+        compute_bounds(g, spacing, recs, &|_| {}, &|| Ok(())).unwrap();
+    }
+
+    #[test]
+    fn planar_terrain_has_zero_error_but_positive_radii() {
+        let (g, mut recs) = grid_with(4, |x, y| 3.0 * x as f32 - 2.0 * y as f32);
+        run(g, [1.0, 1.0], &mut recs);
+        let s = g.size() as usize;
+        for y in 0..g.size() {
+            for x in 0..g.size() {
+                let r = recs[y as usize * s + x as usize];
+                let special = g.kind(x, y) == VertexKind::Corner || (x, y) == g.centre();
+                if special {
+                    assert_eq!(r.error, f32::INFINITY);
+                } else {
+                    assert_eq!(r.error, 0.0, "plane at ({x},{y})");
+                }
+                if g.level(x, y) == 1 || g.kind(x, y) == VertexKind::Corner {
+                    assert_eq!(r.radius, 0.0);
+                } else {
+                    assert!(r.radius > 0.0);
+                }
+                assert_eq!(nesting_violation(g, [1.0, 1.0], |a, b| recs[b as usize * s + a as usize], x, y), None);
+            }
+        }
+    }
+
+    #[test]
+    fn spike_error_propagates_to_every_ancestor() {
+        // A 10 m spike at a finest-level vertex: its raw error is 10, and every DAG ancestor's
+        // nested error must be at least 10.
+        let (g, mut recs) = grid_with(3, |x, y| if (x, y) == (3, 2) { 10.0 } else { 0.0 });
+        run(g, [2.0, 2.0], &mut recs);
+        let s = g.size() as usize;
+        let at = |x: u32, y: u32| recs[y as usize * s + x as usize];
+        assert_eq!(g.level(3, 2), 1);
+        assert_eq!(at(3, 2).error, 10.0);
+        let mut frontier = vec![(3u32, 2u32)];
+        while let Some((x, y)) = frontier.pop() {
+            assert!(at(x, y).error >= 10.0, "ancestor ({x},{y})");
+            let (ps, np) = g.dag_parents(x, y);
+            frontier.extend_from_slice(&ps[..np]);
+        }
+        // Vertices whose descendants do not include the spike, and whose split edges do not touch
+        // it, stay exact zero.
+        assert_eq!(at(1, 0).error, 0.0);
+    }
+
+    #[test]
+    fn radius_of_level_two_vertex_is_distance_to_farthest_child() {
+        let (g, mut recs) = grid_with(2, |_, _| 0.0);
+        run(g, [3.0, 4.0], &mut recs);
+        let s = g.size() as usize;
+        // (1,1) is a square centre at step 1: children (0,1), (2,1), (1,0), (1,2) at 3 m and 4 m.
+        assert_eq!(recs[s + 1].radius, 4.0);
+    }
+}
