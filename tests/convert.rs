@@ -1,0 +1,244 @@
+//! End-to-end conversion of the real DEMs in ../shared/data/dem into every layout, with `info` and
+//! `verify` agreeing, and the file-level guarantees (atomic output, exact errors for bad input).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use relief::convert::{convert, ConvertOptions};
+use relief::format::TerrainFile;
+use relief::inspect;
+use relief::layout::{Layout, LayoutKind};
+use relief::progress::Progress;
+
+fn dem(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/dem").join(name)
+}
+
+const REAL_DEMS: [&str; 6] = [
+    "zurich_25m_i16.tif",
+    "lidar_1m_f32.tif",
+    "etopo20_world.tif",
+    "fuji_terrain_rgb.png",
+    "terrarium.png",
+    "hugo_site_nodata.asc",
+];
+
+fn relief() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_relief"))
+}
+
+/// Files in `dir` (to prove nothing half-written or temporary is left behind).
+fn listing(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn every_real_dem_converts_to_every_layout_and_verifies() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in REAL_DEMS {
+        let mut reference: Option<(TerrainFile, Vec<relief::format::Record>)> = None;
+        for kind in LayoutKind::ALL {
+            let out = dir.path().join(format!("{name}.{kind}.relief"));
+            let report = convert(&dem(name), &out, &ConvertOptions::new(kind)).unwrap_or_else(|e| panic!("{name} {kind}: {e}"));
+            let file = TerrainFile::open(&out).unwrap();
+            let info = inspect::info(&file);
+            // info agrees with the conversion report and the header.
+            assert_eq!(info.layout, kind.name());
+            assert_eq!(info.grid_size, report.grid_size);
+            assert_eq!(info.records, report.records);
+            assert_eq!(info.records, file.layout().records());
+            assert_eq!(info.vertices, (report.grid_size as u64).pow(2));
+            assert_eq!(info.valid_window, [0, 0, report.source_width, report.source_height]);
+            assert_eq!(info.nodata_filled, report.nodata_filled);
+            assert_eq!(info.file_bytes, std::fs::metadata(&out).unwrap().len());
+            assert_eq!((info.z_min, info.z_max), (report.z_min, report.z_max));
+            assert!(report.grid_size >= report.source_width.max(report.source_height));
+            assert!((report.grid_size - 1) / 2 < report.source_width.max(report.source_height), "not the smallest grid");
+            // verify: checksums and nesting over every vertex.
+            let v = inspect::verify(&file, Progress::hidden()).unwrap();
+            assert!(v.ok, "{name} {kind}: {:?}", v.problems);
+            assert_eq!(v.vertices_checked, info.vertices);
+            // Every layout stores the same record for the same grid post.
+            let g = file.grid();
+            let recs: Vec<_> = (0..g.size()).flat_map(|y| (0..g.size()).map(move |x| (x, y))).map(|(x, y)| file.record_at(x, y)).collect();
+            match &reference {
+                None => reference = Some((file, recs)),
+                Some((_, r)) => assert!(r == &recs, "{name}: {kind} stores different records than row-major"),
+            }
+        }
+    }
+}
+
+#[test]
+fn heights_and_spacing_come_from_the_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let conv = |name: &str| {
+        let out = dir.path().join(format!("{name}.relief"));
+        convert(&dem(name), &out, &ConvertOptions::new(LayoutKind::Hz)).unwrap();
+        inspect::info(&TerrainFile::open(&out).unwrap())
+    };
+    let z = conv("zurich_25m_i16.tif");
+    assert_eq!(z.spacing_m, [25.0, 25.0]);
+    assert!(!z.spacing_assumed && z.geographic.is_none());
+    assert_eq!((z.z_min, z.z_max), (393.0, 870.0));
+    assert_eq!(z.grid_size, 513);
+    assert_eq!(z.extent_m, [512.0 * 25.0, 512.0 * 25.0]);
+
+    let e = conv("etopo20_world.tif");
+    let g = e.geographic.expect("etopo20 is geographic");
+    assert!((g.spacing_deg[0] - 1.0 / 3.0).abs() < 1e-6, "{:?}", g.spacing_deg);
+    assert!(g.centre_lat_deg.abs() < 0.5, "{}", g.centre_lat_deg);
+    // 1/3 degree of latitude is about 37.06 km; at the equator longitude is the same.
+    assert!((e.spacing_m[1] - 37_065.0).abs() < 50.0, "{:?}", e.spacing_m);
+    assert!((e.spacing_m[0] - e.spacing_m[1]).abs() < 10.0);
+    assert!(e.z_min < -9000.0 && e.z_max > 6200.0, "bathymetry kept: {} {}", e.z_min, e.z_max);
+
+    let f = conv("fuji_terrain_rgb.png");
+    assert!(f.spacing_assumed, "Terrain-RGB carries no spacing");
+    assert!((f.z_min - 13.7).abs() < 0.2 && (f.z_max - 3751.0).abs() < 1.0, "{} {}", f.z_min, f.z_max);
+
+    let h = conv("hugo_site_nodata.asc");
+    assert!(h.nodata_filled > 0, "hugo has NODATA cells");
+    assert!(h.z_min >= 1660.0 - 0.5 && h.z_max <= 1711.0 + 0.5);
+}
+
+#[test]
+fn spacing_and_z_scale_options_apply() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("t.relief");
+    let mut o = ConvertOptions::new(LayoutKind::Interleaved);
+    o.spacing_m = Some([2.0, 3.0]);
+    o.z_scale = 0.5;
+    o.z_offset = -100.0;
+    let r = convert(&dem("zurich_25m_i16.tif"), &out, &o).unwrap();
+    assert_eq!(r.spacing_m, [2.0, 3.0]);
+    assert_eq!((r.z_min, r.z_max), (393.0 * 0.5 - 100.0, 870.0 * 0.5 - 100.0));
+    assert!(inspect::verify(&TerrainFile::open(&out).unwrap(), Progress::hidden()).unwrap().ok);
+}
+
+#[test]
+fn cli_convert_info_verify_round_trip() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("z.relief");
+    let st = relief().args(["convert", "--quiet", "--layout", "embedded"]).arg(dem("zurich_25m_i16.tif")).arg(&out).output().unwrap();
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    let info = relief().args(["info", "--json"]).arg(&out).output().unwrap();
+    assert!(info.status.success());
+    let j: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    for key in ["grid_size", "levels", "layout", "records", "vertices", "waste_ratio", "spacing_m", "extent_m", "z_min", "z_max", "valid_window", "nodata_filled", "file_bytes"] {
+        assert!(j.get(key).is_some(), "info --json lacks {key}");
+    }
+    assert_eq!(j["layout"], "embedded");
+    assert_eq!(j["grid_size"], 513);
+    assert_eq!(j["levels"], 18);
+    let v = relief().args(["verify", "--json"]).arg(&out).output().unwrap();
+    assert!(v.status.success());
+    let j: serde_json::Value = serde_json::from_slice(&v.stdout).unwrap();
+    assert_eq!(j["ok"], true);
+    assert_eq!(listing(dir.path()), vec!["z.relief"]);
+}
+
+/// Runs `relief ARGS…`, expects failure with one stderr line containing `needle`.
+fn fails_with(args: &[&std::ffi::OsStr], needle: &str) -> String {
+    let out = relief().args(args).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "expected failure for {args:?}");
+    assert_eq!(err.trim_end().lines().count(), 1, "one line expected: {err}");
+    assert!(err.contains(needle), "'{needle}' not in: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
+#[test]
+fn bad_inputs_give_one_line_errors_and_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("out.relief");
+    let os = |p: &Path| p.as_os_str().to_owned();
+
+    // Unknown format.
+    let junk = d.join("junk.bin");
+    std::fs::write(&junk, b"this is not a DEM at all, just some text").unwrap();
+    fails_with(&["convert".as_ref(), &os(&junk), &os(&out)], "junk.bin");
+    // Truncated GeoTIFF.
+    let bytes = std::fs::read(dem("zurich_25m_i16.tif")).unwrap();
+    let trunc = d.join("trunc.tif");
+    std::fs::write(&trunc, &bytes[..bytes.len() / 2]).unwrap();
+    fails_with(&["convert".as_ref(), &os(&trunc), &os(&out)], "trunc.tif");
+    // A DEM with no valid sample.
+    let void = d.join("void.asc");
+    std::fs::write(&void, "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 10\nNODATA_value -9999\n-9999 -9999 -9999\n-9999 -9999 -9999\n").unwrap();
+    fails_with(&["convert".as_ref(), &os(&void), &os(&out)], "no valid sample");
+    // An output path that cannot be written.
+    let nowhere = d.join("no/such/dir/out.relief");
+    fails_with(&["convert".as_ref(), &os(&dem("hugo_site_nodata.asc")), &os(&nowhere)], "no/such/dir");
+    // Bad options.
+    fails_with(&["convert".as_ref(), &os(&dem("hugo_site_nodata.asc")), &os(&out), "--spacing=-3".as_ref()], "--spacing");
+    fails_with(&["convert".as_ref(), &os(&dem("hugo_site_nodata.asc")), &os(&out), "--layout".as_ref(), "tiled".as_ref(), "--tile".as_ref(), "12".as_ref()], "power of two");
+    assert_eq!(listing(d), vec!["junk.bin", "trunc.tif", "void.asc"], "no output or temporary file left");
+
+    // Damaged terrain files.
+    let good = d.join("good.relief");
+    convert(&dem("hugo_site_nodata.asc"), &good, &ConvertOptions::new(LayoutKind::Interleaved)).unwrap();
+    let bytes = std::fs::read(&good).unwrap();
+    let variant = |name: &str, f: &dyn Fn(&mut Vec<u8>)| {
+        let p = d.join(name);
+        let mut b = bytes.clone();
+        f(&mut b);
+        std::fs::write(&p, b).unwrap();
+        p
+    };
+    let p = variant("magic.relief", &|b| b[1] = b'X');
+    fails_with(&["info".as_ref(), &os(&p)], "not a relief terrain file");
+    let p = variant("version.relief", &|b| b[8] = 7);
+    fails_with(&["info".as_ref(), &os(&p)], "version 7");
+    let p = variant("header.relief", &|b| b[110] ^= 0x40);
+    fails_with(&["info".as_ref(), &os(&p)], "header checksum");
+    let p = variant("short.relief", &|b| b.truncate(b.len() - 12));
+    fails_with(&["verify".as_ref(), &os(&p)], "truncated");
+    let p = variant("tiny.relief", &|b| b.truncate(10));
+    fails_with(&["info".as_ref(), &os(&p)], "tiny.relief");
+    fails_with(&["info".as_ref(), &os(&d.join("missing.relief"))], "missing.relief");
+    // A flipped payload byte opens (the payload checksum is checked on demand) but fails verify.
+    let p = variant("payload.relief", &|b| {
+        let k = b.len() - 100;
+        b[k] ^= 1
+    });
+    assert!(relief().arg("info").arg(&p).output().unwrap().status.success());
+    let v = relief().args(["verify", "--json"]).arg(&p).output().unwrap();
+    assert!(!v.status.success());
+    let j: serde_json::Value = serde_json::from_slice(&v.stdout).unwrap();
+    assert_eq!(j["payload_checksum_ok"], false);
+}
+
+#[test]
+fn interrupted_conversion_leaves_old_file_or_new_one() {
+    // Interrupt a conversion of a SYNTHETIC 2049² DEM with SIGINT: the final name must hold the
+    // previous complete file (or, if conversion won the race, the new complete file), and no
+    // temporary file may remain.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let synth = d.join("synthetic_2049.tif");
+    let st = Command::new(env!("CARGO_BIN_EXE_relief-synth")).arg(&synth).args(["--size", "2049", "--seed", "3"]).output().unwrap();
+    assert!(st.status.success());
+    let out = d.join("t.relief");
+    convert(&dem("hugo_site_nodata.asc"), &out, &ConvertOptions::new(LayoutKind::Hz)).unwrap();
+    let mut old = std::fs::read(&out).unwrap();
+    for delay_ms in [20u64, 80, 200] {
+        let child = relief().args(["convert", "--quiet", "--layout", "interleaved"]).arg(&synth).arg(&out).spawn().unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+        let res = child.wait_with_output().unwrap();
+        let now = std::fs::read(&out).unwrap();
+        if res.status.success() {
+            let f = TerrainFile::open(&out).unwrap();
+            assert!(inspect::verify(&f, Progress::hidden()).unwrap().ok);
+        } else {
+            assert_eq!(now, old, "interrupted at {delay_ms} ms but the file changed");
+        }
+        assert_eq!(listing(d), vec!["synthetic_2049.tif", "t.relief"], "temporary files left");
+        old = now;
+    }
+}
