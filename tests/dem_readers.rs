@@ -161,3 +161,301 @@ fn hugo_asc_with_nodata() {
     assert_close(hi, 1711.0, 0.5, "max");
     eprintln!("hugo: {} nodata samples, spacing {:?}", g.nan_count(), g.info.spacing);
 }
+
+#[test]
+fn real_data_counts() {
+    // What the files actually contain: zurich declares nodata but has no nodata post; hugo has
+    // 2028 of them (its whole margin).
+    assert_eq!(read(&data("zurich_25m_i16.tif"), None).nan_count(), 0);
+    assert_eq!(read(&data("hugo_site_nodata.asc"), None).nan_count(), 2028);
+    assert_eq!(read(&data("lidar_1m_f32.tif"), None).nan_count(), 0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fixtures
+
+/// The test value at (x, y) of a small grid: distinct, and fitting in every sample type.
+fn value(x: u32, y: u32) -> i64 {
+    i64::from(y) * 10 + i64::from(x) + 1
+}
+
+mod tiff_fixtures {
+    use super::*;
+    use tiff::encoder::{colortype, Compression, DeflateLevel, TiffEncoder};
+    use tiff::tags::Tag;
+
+    pub const W: u32 = 5;
+    pub const H: u32 = 7;
+
+    /// Writes a W x H TIFF of sample type `C` in strips of 2 rows, with pixel scale 25 m and
+    /// GDAL_NODATA "-9999"... for signed types, or "3" for unsigned (so that value 3 becomes NaN).
+    pub fn write<C: colortype::ColorType>(
+        path: &Path,
+        compression: Compression,
+        nodata: &str,
+        convert: impl Fn(i64) -> C::Inner,
+    ) where
+        [C::Inner]: tiff::encoder::TiffValue,
+    {
+        let file = std::fs::File::create(path).unwrap();
+        let mut encoder = TiffEncoder::new(file).unwrap().with_compression(compression);
+        let mut image = encoder.new_image::<C>(W, H).unwrap();
+        image.rows_per_strip(2).unwrap();
+        image.encoder().write_tag(Tag::ModelPixelScaleTag, &[25.0f64, 25.0, 0.0][..]).unwrap();
+        image.encoder().write_tag(Tag::GdalNodata, nodata).unwrap();
+        let data: Vec<C::Inner> =
+            (0..H).flat_map(|y| (0..W).map(move |x| value(x, y))).map(&convert).collect();
+        image.write_data(&data).unwrap();
+    }
+
+    pub fn compressions() -> [(&'static str, Compression); 3] {
+        [
+            ("none", Compression::Uncompressed),
+            ("deflate", Compression::Deflate(DeflateLevel::Balanced)),
+            ("lzw", Compression::Lzw),
+        ]
+    }
+}
+
+/// Checks a TIFF fixture written by `tiff_fixtures::write` with nodata value 3.
+fn check_tiff_fixture(path: &Path, sample_type: &str) {
+    let g = read(path, None);
+    assert_eq!(g.info.format, DemFormat::GeoTiff);
+    assert_eq!((g.info.width, g.info.height), (tiff_fixtures::W, tiff_fixtures::H));
+    assert_eq!(g.info.sample_type, sample_type);
+    assert_eq!(g.info.nodata, Some(3.0));
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Metres { x: 25.0, y: 25.0 }));
+    for y in 0..tiff_fixtures::H {
+        for x in 0..tiff_fixtures::W {
+            let v = g.at(x, y);
+            if value(x, y) == 3 {
+                assert!(v.is_nan(), "{sample_type} ({x}, {y}): nodata gave {v}");
+            } else {
+                assert_eq!(v, value(x, y) as f64, "{sample_type} ({x}, {y})");
+            }
+        }
+    }
+}
+
+#[test]
+fn tiff_every_sample_type_and_compression() {
+    use tiff::encoder::colortype::*;
+    let dir = tempfile::tempdir().unwrap();
+    for (name, compression) in tiff_fixtures::compressions() {
+        let p = |t: &str| dir.path().join(format!("{t}_{name}.tif"));
+        tiff_fixtures::write::<Gray8>(&p("u8"), compression, "3", |v| v as u8);
+        check_tiff_fixture(&p("u8"), "uint8");
+        tiff_fixtures::write::<GrayI8>(&p("i8"), compression, "3", |v| v as i8);
+        check_tiff_fixture(&p("i8"), "int8");
+        tiff_fixtures::write::<Gray16>(&p("u16"), compression, "3", |v| v as u16);
+        check_tiff_fixture(&p("u16"), "uint16");
+        tiff_fixtures::write::<GrayI16>(&p("i16"), compression, "3", |v| v as i16);
+        check_tiff_fixture(&p("i16"), "int16");
+        tiff_fixtures::write::<Gray32>(&p("u32"), compression, "3", |v| v as u32);
+        check_tiff_fixture(&p("u32"), "uint32");
+        tiff_fixtures::write::<GrayI32>(&p("i32"), compression, "3", |v| v as i32);
+        check_tiff_fixture(&p("i32"), "int32");
+        tiff_fixtures::write::<Gray64>(&p("u64"), compression, "3", |v| v as u64);
+        check_tiff_fixture(&p("u64"), "uint64");
+        tiff_fixtures::write::<GrayI64>(&p("i64"), compression, "3", |v| v);
+        check_tiff_fixture(&p("i64"), "int64");
+        tiff_fixtures::write::<Gray32Float>(&p("f32"), compression, "3.0", |v| v as f32);
+        check_tiff_fixture(&p("f32"), "float32");
+        tiff_fixtures::write::<Gray64Float>(&p("f64"), compression, "3", |v| v as f64);
+        check_tiff_fixture(&p("f64"), "float64");
+    }
+}
+
+#[test]
+fn tiff_float_nodata_and_non_finite() {
+    use tiff::encoder::{colortype::Gray32Float, TiffEncoder};
+    use tiff::tags::Tag;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("f32_nodata.tif");
+    let data = [1.5f32, f32::MIN, f32::NAN, f32::INFINITY, -2.25, f32::NEG_INFINITY];
+    let mut encoder = TiffEncoder::new(std::fs::File::create(&path).unwrap()).unwrap();
+    let mut image = encoder.new_image::<Gray32Float>(3, 2).unwrap();
+    // GDAL writes f32::MIN as this f64 text; it must match after casting to f32.
+    image.encoder().write_tag(Tag::GdalNodata, "-3.4028234663852886e+38").unwrap();
+    image.write_data(&data).unwrap();
+    let g = read(&path, None);
+    assert_eq!(g.info.spacing, None);
+    assert_eq!(g.values[0], 1.5);
+    assert_eq!(g.values[4], -2.25);
+    for k in [1, 2, 3, 5] {
+        assert!(g.values[k].is_nan(), "sample {k} = {}", g.values[k]);
+    }
+}
+
+#[test]
+fn tiff_multi_sample_takes_first() {
+    use tiff::encoder::{colortype::RGB16, TiffEncoder};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("rgb16.tif");
+    let (w, h) = (4u32, 3u32);
+    let data: Vec<u16> = (0..h)
+        .flat_map(|y| (0..w).flat_map(move |x| [value(x, y) as u16, 60000, 60001]))
+        .collect();
+    let mut encoder = TiffEncoder::new(std::fs::File::create(&path).unwrap()).unwrap();
+    encoder.write_image::<RGB16>(w, h, &data).unwrap();
+    let g = read(&path, None);
+    assert!(g.info.sample_type.contains("first of 3"), "{}", g.info.sample_type);
+    for y in 0..h {
+        for x in 0..w {
+            assert_eq!(g.at(x, y), value(x, y) as f64);
+        }
+    }
+}
+
+/// Assembles a little-endian, uncompressed, tiled u16 TIFF by hand (the encoder writes strips
+/// only). Tiles are `tile` x `tile`, padded at the right and bottom edges; `samples` per pixel,
+/// interleaved (`planar` false) or in separate planes. Sample s of pixel (x, y) is
+/// `value(x, y) + 1000 s`. Optional geo tags: pixel scale, tie point and a GeoKeyDirectory.
+fn tiled_tiff(width: u32, height: u32, tile: u32, samples: u16, planar: bool, geo: bool) -> Vec<u8> {
+    let across = width.div_ceil(tile);
+    let down = height.div_ceil(tile);
+    let planes = if planar { u32::from(samples) } else { 1 };
+    let spp_in_tile = if planar { 1 } else { u32::from(samples) };
+    let tile_bytes = tile * tile * spp_in_tile * 2;
+    let tile_count = across * down * planes;
+
+    // Pixel data first, right after the 8-byte header.
+    let mut out = Vec::new();
+    out.extend_from_slice(b"II*\0");
+    out.extend_from_slice(&0u32.to_le_bytes()); // IFD offset, patched below
+    let mut offsets = Vec::new();
+    for plane in 0..planes {
+        for ty in 0..down {
+            for tx in 0..across {
+                offsets.push(out.len() as u32);
+                for row in 0..tile {
+                    for col in 0..tile {
+                        for s in 0..spp_in_tile {
+                            let (x, y) = (tx * tile + col, ty * tile + row);
+                            let sample = if planar { plane } else { s };
+                            let v = if x < width && y < height {
+                                value(x, y) as u16 + 1000 * sample as u16
+                            } else {
+                                0xdead // padding, must never be emitted
+                            };
+                            out.extend_from_slice(&v.to_le_bytes());
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // Out-of-line arrays.
+    let offsets_at = out.len() as u32;
+    for o in &offsets {
+        out.extend_from_slice(&o.to_le_bytes());
+    }
+    let counts_at = out.len() as u32;
+    for _ in 0..tile_count {
+        out.extend_from_slice(&tile_bytes.to_le_bytes());
+    }
+    let bits_at = out.len() as u32;
+    for _ in 0..samples {
+        out.extend_from_slice(&16u16.to_le_bytes());
+    }
+    let scale_at = out.len() as u32;
+    for v in [0.5f64, 0.25, 0.0] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    let tie_at = out.len() as u32;
+    for v in [0.0f64, 0.0, 0.0, 8.0, 47.0, 0.0] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    let keys_at = out.len() as u32;
+    for v in [1u16, 1, 0, 1, 1024, 0, 1, 2] {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    if out.len() % 2 == 1 {
+        out.push(0);
+    }
+    let ifd_at = out.len() as u32;
+    out[4..8].copy_from_slice(&ifd_at.to_le_bytes());
+
+    // (tag, type, count, value or offset); types: 3 SHORT, 4 LONG, 12 DOUBLE.
+    let mut entries: Vec<(u16, u16, u32, u32)> = vec![
+        (256, 4, 1, width),
+        (257, 4, 1, height),
+        (258, 3, u32::from(samples), match samples {
+            1 => 16,
+            2 => 16 | 16 << 16, // two SHORTs fit inline
+            _ => bits_at,
+        }),
+        (259, 3, 1, 1),
+        (262, 3, 1, 1),
+        (277, 3, 1, u32::from(samples)),
+        (284, 3, 1, if planar { 2 } else { 1 }),
+        (322, 4, 1, tile),
+        (323, 4, 1, tile),
+        (324, 4, tile_count, if tile_count == 1 { offsets[0] } else { offsets_at }),
+        (325, 4, tile_count, if tile_count == 1 { tile_bytes } else { counts_at }),
+    ];
+    if samples > 1 {
+        entries.push((338, 3, 1, 0)); // ExtraSamples: unspecified
+    }
+    if geo {
+        entries.push((33550, 12, 3, scale_at));
+        entries.push((33922, 12, 6, tie_at));
+        entries.push((34735, 3, 8, keys_at));
+    }
+    entries.sort_by_key(|e| e.0);
+    out.extend_from_slice(&(entries.len() as u16).to_le_bytes());
+    for (tag, ty, count, v) in entries {
+        out.extend_from_slice(&tag.to_le_bytes());
+        out.extend_from_slice(&ty.to_le_bytes());
+        out.extend_from_slice(&count.to_le_bytes());
+        if ty == 3 && count == 1 {
+            out.extend_from_slice(&(v as u16).to_le_bytes());
+            out.extend_from_slice(&[0, 0]);
+        } else {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    out.extend_from_slice(&0u32.to_le_bytes());
+    out
+}
+
+fn check_tiled(bytes: &[u8], width: u32, height: u32, name: &str) -> Grid {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    std::fs::write(&path, bytes).unwrap();
+    let g = read(&path, None);
+    assert_eq!((g.info.width, g.info.height), (width, height));
+    for y in 0..height {
+        for x in 0..width {
+            assert_eq!(g.at(x, y), value(x, y) as f64, "{name} ({x}, {y})");
+        }
+    }
+    g
+}
+
+#[test]
+fn tiff_tiled_with_partial_edge_tiles() {
+    // 5 x 3 in 4 x 4 tiles: the right tile has 1 valid column, both have 3 valid rows.
+    let g = check_tiled(&tiled_tiff(5, 3, 4, 1, false, false), 5, 3, "tiled.tif");
+    assert_eq!(g.info.spacing, None);
+    check_tiled(&tiled_tiff(9, 10, 4, 1, false, false), 9, 10, "tiled_3x3.tif");
+    check_tiled(&tiled_tiff(3, 2, 16, 1, false, false), 3, 2, "one_tile.tif");
+}
+
+#[test]
+fn tiff_tiled_multi_sample_chunky_and_planar() {
+    check_tiled(&tiled_tiff(5, 3, 4, 2, false, false), 5, 3, "chunky2.tif");
+    check_tiled(&tiled_tiff(5, 3, 4, 2, true, false), 5, 3, "planar2.tif");
+    check_tiled(&tiled_tiff(6, 9, 4, 3, true, false), 6, 9, "planar3.tif");
+}
+
+#[test]
+fn tiff_geographic_spacing() {
+    // Pixel scale 0.5° x 0.25°, tie point (0, 0) -> (8°E, 47°N), 8 rows: the centre is at
+    // 47 - 0.25 * 4 = 46°N.
+    let g = check_tiled(&tiled_tiff(5, 8, 4, 1, false, true), 5, 8, "geo.tif");
+    assert_eq!(
+        g.info.spacing,
+        Some(SourceSpacing::Degrees { x: 0.5, y: 0.25, centre_lat_deg: 46.0 })
+    );
+}
