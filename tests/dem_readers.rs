@@ -2,7 +2,6 @@
 //! sample type, and malformed input (which must give an error naming the file, never a panic).
 
 use std::collections::HashSet;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use relief::dem::{self, DemFormat, DemInfo, SourceSpacing};
@@ -458,4 +457,374 @@ fn tiff_geographic_spacing() {
         g.info.spacing,
         Some(SourceSpacing::Degrees { x: 0.5, y: 0.25, centre_lat_deg: 46.0 })
     );
+}
+
+// PNG -----------------------------------------------------------------------------------------
+
+fn write_png(path: &Path, w: u32, h: u32, colour: png::ColorType, depth: png::BitDepth, data: &[u8]) {
+    let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut encoder = png::Encoder::new(file, w, h);
+    encoder.set_color(colour);
+    encoder.set_depth(depth);
+    let mut writer = encoder.write_header().unwrap();
+    writer.write_image_data(data).unwrap();
+    writer.finish().unwrap();
+}
+
+#[test]
+fn png_gray8_gray16_and_alpha() {
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (5u32, 4u32);
+
+    let p8 = dir.path().join("gray8.png");
+    let data: Vec<u8> = (0..h).flat_map(|y| (0..w).map(move |x| value(x, y) as u8)).collect();
+    write_png(&p8, w, h, png::ColorType::Grayscale, png::BitDepth::Eight, &data);
+    let g = read(&p8, None);
+    assert_eq!(g.info.format, DemFormat::Png);
+    assert_eq!(g.info.sample_type, "uint8 gray");
+    assert_eq!(g.at(4, 3), value(4, 3) as f64);
+    assert_eq!(g.nan_count(), 0);
+
+    let p16 = dir.path().join("gray16.png");
+    let data: Vec<u8> = (0..h)
+        .flat_map(|y| (0..w).flat_map(move |x| (value(x, y) as u16 * 1000).to_be_bytes()))
+        .collect();
+    write_png(&p16, w, h, png::ColorType::Grayscale, png::BitDepth::Sixteen, &data);
+    let g = read(&p16, None);
+    assert_eq!(g.info.sample_type, "uint16 gray");
+    for y in 0..h {
+        for x in 0..w {
+            assert_eq!(g.at(x, y), (value(x, y) * 1000) as f64);
+        }
+    }
+
+    let pa = dir.path().join("gray_alpha.png");
+    let data: Vec<u8> = (0..h)
+        .flat_map(|y| (0..w).flat_map(move |x| [value(x, y) as u8, if (x, y) == (2, 1) { 0 } else { 255 }]))
+        .collect();
+    write_png(&pa, w, h, png::ColorType::GrayscaleAlpha, png::BitDepth::Eight, &data);
+    let g = read(&pa, None);
+    assert!(g.at(2, 1).is_nan());
+    assert_eq!(g.nan_count(), 1);
+    assert_eq!(g.at(3, 1), value(3, 1) as f64);
+}
+
+fn terrain_rgb_pixel(h: f64) -> [u8; 3] {
+    let v = ((h + 10000.0) * 10.0).round() as u32;
+    [(v >> 16) as u8, (v >> 8) as u8, v as u8]
+}
+
+fn terrarium_pixel(h: f64) -> [u8; 3] {
+    let v = h + 32768.0;
+    [(v / 256.0).floor() as u8, (v.floor() as u32 % 256) as u8, (v.fract() * 256.0) as u8]
+}
+
+/// Heights exactly representable in both encodings (multiples of 0.5 m... and of 1/256).
+const HEIGHTS: [f64; 6] = [0.0, 123.5, 3776.0, -50.5, 2489.0, 715.5];
+
+fn write_encoded(path: &Path, encode: fn(f64) -> [u8; 3], alpha: bool) {
+    // 3 x 2 pixels of HEIGHTS; with alpha, the last pixel is transparent.
+    let mut data = Vec::new();
+    for (k, &h) in HEIGHTS.iter().enumerate() {
+        data.extend_from_slice(&encode(h));
+        if alpha {
+            data.push(if k == 5 { 0 } else { 255 });
+        }
+    }
+    let colour = if alpha { png::ColorType::Rgba } else { png::ColorType::Rgb };
+    write_png(path, 3, 2, colour, png::BitDepth::Eight, &data);
+}
+
+fn check_encoded(path: &Path, format: DemFormat, alpha: bool) {
+    let g = read(path, None);
+    assert_eq!(g.info.format, format, "{}", path.display());
+    for (k, &h) in HEIGHTS.iter().enumerate() {
+        if alpha && k == 5 {
+            assert!(g.values[k].is_nan());
+        } else {
+            assert_close(g.values[k], h, 1e-6, "decoded height");
+        }
+    }
+}
+
+#[test]
+fn png_terrain_rgb_and_terrarium_by_name_and_content() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |n: &str| dir.path().join(n);
+    // By content (neutral names).
+    write_encoded(&d("a.png"), terrain_rgb_pixel, false);
+    check_encoded(&d("a.png"), DemFormat::TerrainRgb, false);
+    write_encoded(&d("b.png"), terrarium_pixel, true);
+    check_encoded(&d("b.png"), DemFormat::Terrarium, true);
+    write_encoded(&d("c.png"), terrain_rgb_pixel, true);
+    check_encoded(&d("c.png"), DemFormat::TerrainRgb, true);
+    // By name: the hint wins even over content that suggests the other encoding.
+    write_encoded(&d("tile_terrarium.png"), terrarium_pixel, false);
+    check_encoded(&d("tile_terrarium.png"), DemFormat::Terrarium, false);
+    write_encoded(&d("Mapbox_Terrain-RGB.png"), terrain_rgb_pixel, false);
+    check_encoded(&d("Mapbox_Terrain-RGB.png"), DemFormat::TerrainRgb, false);
+    let g = read(&d("a.png"), Some(DemFormat::Terrarium));
+    assert_eq!(g.info.format, DemFormat::Terrarium);
+}
+
+#[test]
+fn png_detection_and_forced_mismatches() {
+    let dir = tempfile::tempdir().unwrap();
+    let gray = dir.path().join("gray.png");
+    write_png(&gray, 2, 2, png::ColorType::Grayscale, png::BitDepth::Eight, &[1, 2, 3, 4]);
+    let m = read_error(&gray, Some(DemFormat::TerrainRgb));
+    assert!(m.contains("grayscale"), "{m}");
+    let rgb = dir.path().join("rgb.png");
+    write_encoded(&rgb, terrain_rgb_pixel, false);
+    let m = read_error(&rgb, Some(DemFormat::Png));
+    assert!(m.contains("colour PNG"), "{m}");
+    let palette = dir.path().join("palette.png");
+    {
+        let file = std::fs::File::create(&palette).unwrap();
+        let mut encoder = png::Encoder::new(file, 2, 1);
+        encoder.set_color(png::ColorType::Indexed);
+        encoder.set_palette(vec![0u8, 0, 0, 255, 255, 255]);
+        let mut writer = encoder.write_header().unwrap();
+        writer.write_image_data(&[0, 1]).unwrap();
+    }
+    let m = read_error(&palette, None);
+    assert!(m.contains("unsupported") && m.contains("palette"), "{m}");
+}
+
+#[test]
+fn png_corrupted_idat() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("corrupt.png");
+    let data: Vec<u8> = (0..64 * 64).map(|i| (i % 251) as u8).collect();
+    write_png(&path, 64, 64, png::ColorType::Grayscale, png::BitDepth::Eight, &data);
+    let mut bytes = std::fs::read(&path).unwrap();
+    let idat = bytes.windows(4).position(|w| w == b"IDAT").unwrap();
+    for b in &mut bytes[idat + 10..idat + 20] {
+        *b ^= 0x5a;
+    }
+    std::fs::write(&path, &bytes).unwrap();
+    let m = read_error(&path, None);
+    assert!(m.contains("PNG"), "{m}");
+}
+
+// OpenEXR -------------------------------------------------------------------------------------
+
+fn write_exr(path: &Path, w: usize, h: usize, channels: Vec<exr::prelude::AnyChannel<exr::prelude::FlatSamples>>, encoding: exr::prelude::Encoding) {
+    use exr::prelude::*;
+    let layer = Layer::new((w, h), LayerAttributes::named("height"), encoding, AnyChannels::sort(channels.into()));
+    Image::from_layer(layer).write().to_file(path).unwrap();
+}
+
+#[test]
+fn exr_f32_f16_u32_scanlines_and_tiles() {
+    use exr::prelude::*;
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (7usize, 37usize);
+    let heights: Vec<f32> = (0..h).flat_map(|y| (0..w).map(move |x| value(x as u32, y as u32) as f32 * 0.5)).collect();
+    let mut with_nan = heights.clone();
+    with_nan[3] = f32::NAN;
+    with_nan[4] = f32::INFINITY;
+    let tiles = Encoding {
+        compression: Compression::ZIP1,
+        blocks: Blocks::Tiles(Vec2(4, 4)),
+        line_order: LineOrder::Unspecified,
+    };
+
+    let cases = [
+        ("f32.exr", vec![AnyChannel::new("Z", FlatSamples::F32(with_nan.clone()))], Encoding::SMALL_LOSSLESS, "float32 channel Z"),
+        ("f32_tiles.exr", vec![AnyChannel::new("Z", FlatSamples::F32(with_nan.clone()))], tiles, "float32 channel Z"),
+        ("f16.exr", vec![AnyChannel::new("Y", FlatSamples::F16(with_nan.iter().map(|&v| f16::from_f32(v)).collect()))], Encoding::UNCOMPRESSED, "float16 channel Y"),
+        ("u32.exr", vec![AnyChannel::new("depth", FlatSamples::U32(heights.iter().map(|&v| (v * 2.0) as u32).collect()))], Encoding::FAST_LOSSLESS, "uint32 channel depth"),
+        // Several channels: "height" is chosen over "A" and "B".
+        ("multi.exr", vec![
+            AnyChannel::new("A", FlatSamples::F32(vec![-1.0; w * h])),
+            AnyChannel::new("B", FlatSamples::F16(vec![f16::from_f32(-2.0); w * h])),
+            AnyChannel::new("height", FlatSamples::F32(with_nan.clone())),
+        ], tiles, "float32 channel height"),
+    ];
+    for (name, channels, encoding, sample_type) in cases {
+        let path = dir.path().join(name);
+        write_exr(&path, w, h, channels, encoding);
+        let g = crate::read(&path, None);
+        assert_eq!(g.info.format, DemFormat::Exr, "{name}");
+        assert_eq!((g.info.width, g.info.height), (w as u32, h as u32), "{name}");
+        assert_eq!(g.info.sample_type, sample_type, "{name}");
+        for (k, &v) in heights.iter().enumerate() {
+            let want = if name == "u32.exr" { f64::from(v * 2.0) } else { f64::from(v) };
+            if name != "u32.exr" && (k == 3 || k == 4) {
+                assert!(g.values[k].is_nan(), "{name} sample {k}");
+            } else {
+                assert_eq!(g.values[k], want, "{name} sample {k}");
+            }
+        }
+    }
+}
+
+// SRTM .hgt ------------------------------------------------------------------------------------
+
+fn hgt_bytes(side: u32, voids: &[(u32, u32)]) -> Vec<u8> {
+    let mut out = Vec::with_capacity((2 * side * side) as usize);
+    for y in 0..side {
+        for x in 0..side {
+            let v = if voids.contains(&(x, y)) { -32768 } else { (x as i32 - y as i32) as i16 };
+            out.extend_from_slice(&v.to_be_bytes());
+        }
+    }
+    out
+}
+
+#[test]
+fn hgt_tiles() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("N47E008.hgt");
+    std::fs::write(&path, hgt_bytes(1201, &[(0, 0), (600, 700)])).unwrap();
+    let g = read(&path, None);
+    assert_eq!(g.info.format, DemFormat::Hgt);
+    assert_eq!((g.info.width, g.info.height), (1201, 1201));
+    assert_eq!(
+        g.info.spacing,
+        Some(SourceSpacing::Degrees { x: 1.0 / 1200.0, y: 1.0 / 1200.0, centre_lat_deg: 47.5 })
+    );
+    assert_eq!(g.nan_count(), 2);
+    assert!(g.at(600, 700).is_nan());
+    assert_eq!(g.at(1200, 3), 1197.0);
+    assert_eq!(g.at(5, 1200), -1195.0);
+
+    // Any square side, lower-case southern name; detection by extension.
+    let small = dir.path().join("s12w077.HGT");
+    std::fs::write(&small, hgt_bytes(3, &[])).unwrap();
+    let g = read(&small, None);
+    assert_eq!(
+        g.info.spacing,
+        Some(SourceSpacing::Degrees { x: 0.5, y: 0.5, centre_lat_deg: -11.5 })
+    );
+    assert_eq!(g.values, vec![0.0, 1.0, 2.0, -1.0, 0.0, 1.0, -2.0, -1.0, 0.0]);
+
+    // Unparseable name: no spacing. Detection by size alone (2·1201² bytes, no extension).
+    let plain = dir.path().join("tile.bin");
+    std::fs::write(&plain, hgt_bytes(1201, &[])).unwrap();
+    let g = read(&plain, None);
+    assert_eq!(g.info.format, DemFormat::Hgt);
+    assert_eq!(g.info.spacing, None);
+
+    let bad = dir.path().join("N00E000.hgt");
+    std::fs::write(&bad, vec![0u8; 2 * 1201 * 1201 - 2]).unwrap();
+    let m = read_error(&bad, None);
+    assert!(m.contains("not that of a square .hgt tile"), "{m}");
+}
+
+// ESRI ASCII grid --------------------------------------------------------------------------------
+
+#[test]
+fn asc_wrapped_rows_nodata_and_header_variants() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("grid.asc");
+    // 4 x 3, keys in odd order and case, centre-registered, rows wrapped across lines.
+    let text = "NROWS 3\nncols   4\nCellSize 2.5\nxllcenter 100\nYLLCENTER 200\nnodata_value -1\n\
+                1 2 3\n4 5\n-1 7 8 9 10\n11\n12\n";
+    std::fs::write(&path, text).unwrap();
+    let g = read(&path, None);
+    assert_eq!(g.info.format, DemFormat::Asc);
+    assert_eq!((g.info.width, g.info.height), (4, 3));
+    assert_eq!(g.info.nodata, Some(-1.0));
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Metres { x: 2.5, y: 2.5 }));
+    assert!(g.values[5].is_nan());
+    let rest: Vec<f64> = g.values.iter().copied().filter(|v| !v.is_nan()).collect();
+    assert_eq!(rest, vec![1.0, 2.0, 3.0, 4.0, 5.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0]);
+
+    // A geographic .prj turns the spacing into degrees; dx/dy instead of cellsize.
+    let geo = dir.path().join("geo.asc");
+    std::fs::write(&geo, "ncols 2\nnrows 2\nxllcorner 8\nyllcorner 46\ndx 0.5\ndy 0.25\n1 2\n3 4\n").unwrap();
+    std::fs::write(dir.path().join("geo.prj"), "GEOGCS[\"WGS 84\",DATUM[\"WGS_1984\"]]").unwrap();
+    let g = read(&geo, None);
+    assert_eq!(g.info.nodata, None);
+    assert_eq!(
+        g.info.spacing,
+        Some(SourceSpacing::Degrees { x: 0.5, y: 0.25, centre_lat_deg: 46.25 })
+    );
+    assert_eq!(g.values, vec![1.0, 2.0, 3.0, 4.0]);
+}
+
+#[test]
+fn asc_errors_say_what_and_where() {
+    let dir = tempfile::tempdir().unwrap();
+    let case = |name: &str, text: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        read_error(&path, Some(DemFormat::Asc))
+    };
+    let header = "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n";
+    let m = case("no_cellsize.asc", "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\n1 2 3\n4 5 6\n");
+    assert!(m.contains("'cellsize' missing"), "{m}");
+    let m = case("not_number.asc", &format!("{header}1 2 3\n4 abc 6\n"));
+    assert!(m.contains("line 7: 'abc' is not a number"), "{m}");
+    let m = case("too_few.asc", &format!("{header}1 2 3\n4 5\n"));
+    assert!(m.contains("expected 6 values (3 x 2), found 5"), "{m}");
+    let m = case("too_many.asc", &format!("{header}1 2 3\n4 5 6 7\n"));
+    assert!(m.contains("more than the 6 values"), "{m}");
+    let m = case("bad_ncols.asc", "ncols -3\nnrows 2\n");
+    assert!(m.contains("line 1: ncols '-3' is not a positive integer"), "{m}");
+    let m = case("huge.asc", "ncols 4000000000\nnrows 4000000000\nxllcorner 0\nyllcorner 0\ncellsize 1\n1\n");
+    assert!(m.contains("absurd dimensions"), "{m}");
+}
+
+// Malformed input -------------------------------------------------------------------------------
+
+#[test]
+fn unknown_empty_and_missing_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = dir.path().join("empty.tif");
+    std::fs::write(&empty, b"").unwrap();
+    let m = read_error(&empty, None);
+    assert!(m.contains("unknown DEM format") && m.contains("empty file"), "{m}");
+
+    let random = dir.path().join("noise.xyz");
+    std::fs::write(&random, [0u8, 1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
+    let m = read_error(&random, None);
+    assert!(m.contains("first bytes 00 01 02 03, extension .xyz"), "{m}");
+
+    let missing = dir.path().join("missing.tif");
+    match dem::open(&missing, None) {
+        Err(e @ relief::Error::Io { .. }) => assert!(e.to_string().contains("missing.tif")),
+        Err(e) => panic!("wrong error {e}"),
+        Ok(_) => panic!("opened a missing file"),
+    }
+}
+
+#[test]
+fn truncated_real_files_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in [
+        "zurich_25m_i16.tif",
+        "lidar_1m_f32.tif",
+        "etopo20_world.tif",
+        "fuji_terrain_rgb.png",
+        "terrarium.png",
+        "hugo_site_nodata.asc",
+    ] {
+        let bytes = std::fs::read(data(name)).unwrap();
+        // (Not "all but the last byte": in lidar's padded edge tiles that byte is never needed.)
+        for len in [100, bytes.len() / 2, bytes.len() * 3 / 4] {
+            let path = dir.path().join(name);
+            std::fs::write(&path, &bytes[..len]).unwrap();
+            let m = read_error(&path, None);
+            eprintln!("{name}[..{len}]: {m}");
+        }
+    }
+}
+
+#[test]
+fn forced_formats_that_do_not_match() {
+    for (name, format) in [
+        ("zurich_25m_i16.tif", DemFormat::Png),
+        ("zurich_25m_i16.tif", DemFormat::Asc),
+        ("zurich_25m_i16.tif", DemFormat::Exr),
+        ("zurich_25m_i16.tif", DemFormat::Hgt),
+        ("terrarium.png", DemFormat::GeoTiff),
+        ("hugo_site_nodata.asc", DemFormat::Terrarium),
+        ("hugo_site_nodata.asc", DemFormat::GeoTiff),
+    ] {
+        let m = read_error(&data(name), Some(format));
+        eprintln!("{name} as {format}: {m}");
+    }
 }
