@@ -37,9 +37,10 @@ fn tiff_error(path: &Path, e: TiffError) -> Error {
             Error::bad_dem(path, "truncated TIFF (unexpected end of file)")
         }
         TiffError::IoError(e) => Error::io(path, e),
-        TiffError::UnsupportedError(e) => {
-            Error::Unsupported { path: path.to_path_buf(), what: format!("TIFF feature: {e}") }
-        }
+        TiffError::UnsupportedError(e) => Error::Unsupported {
+            path: path.to_path_buf(),
+            what: format!("TIFF feature: {e}"),
+        },
         e => Error::bad_dem(path, format!("invalid TIFF: {}", one_line(&e.to_string()))),
     }
 }
@@ -107,20 +108,37 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
     let nodata = read_nodata(path, &mut decoder)?;
     let spacing = read_spacing(path, &mut decoder, height)?;
 
-    let info = DemInfo { format: DemFormat::GeoTiff, width, height, spacing, nodata, sample_type };
-    Ok(Box::new(GeoTiff { path: path.to_path_buf(), decoder, info }))
+    let info = DemInfo {
+        format: DemFormat::GeoTiff,
+        width,
+        height,
+        spacing,
+        nodata,
+        sample_type,
+    };
+    Ok(Box::new(GeoTiff {
+        path: path.to_path_buf(),
+        decoder,
+        info,
+    }))
 }
 
 /// GDAL_NODATA is an ASCII number; an unparsable one is ignored rather than fatal.
 fn read_nodata(path: &Path, decoder: &mut Decoder<BufReader<File>>) -> Result<Option<f64>> {
-    let Some(value) = decoder.find_tag(Tag::GdalNodata).map_err(|e| tiff_error(path, e))? else {
+    let Some(value) = decoder
+        .find_tag(Tag::GdalNodata)
+        .map_err(|e| tiff_error(path, e))?
+    else {
         return Ok(None);
     };
     let text = match value.into_string() {
         Ok(t) => t,
         Err(_) => return Ok(None),
     };
-    Ok(text.trim_matches(|c: char| c == '\0' || c.is_whitespace()).parse::<f64>().ok())
+    Ok(text
+        .trim_matches(|c: char| c == '\0' || c.is_whitespace())
+        .parse::<f64>()
+        .ok())
 }
 
 /// Reads the post spacing from the GeoTIFF tags (see the module doc).
@@ -129,12 +147,13 @@ fn read_spacing(
     decoder: &mut Decoder<BufReader<File>>,
     height: u32,
 ) -> Result<Option<SourceSpacing>> {
-    let find_f64s = |decoder: &mut Decoder<BufReader<File>>, tag: Tag| -> Result<Option<Vec<f64>>> {
-        match decoder.find_tag(tag).map_err(|e| tiff_error(path, e))? {
-            Some(v) => Ok(v.into_f64_vec().ok()),
-            None => Ok(None),
-        }
-    };
+    let find_f64s =
+        |decoder: &mut Decoder<BufReader<File>>, tag: Tag| -> Result<Option<Vec<f64>>> {
+            match decoder.find_tag(tag).map_err(|e| tiff_error(path, e))? {
+                Some(v) => Ok(v.into_f64_vec().ok()),
+                None => Ok(None),
+            }
+        };
     let scale = find_f64s(decoder, Tag::ModelPixelScaleTag)?;
     let tie = find_f64s(decoder, Tag::ModelTiepointTag)?;
     let transform = find_f64s(decoder, Tag::ModelTransformationTag)?;
@@ -158,7 +177,10 @@ fn read_spacing(
         return Ok(None);
     }
 
-    let keys = match decoder.find_tag(Tag::GeoKeyDirectoryTag).map_err(|e| tiff_error(path, e))? {
+    let keys = match decoder
+        .find_tag(Tag::GeoKeyDirectoryTag)
+        .map_err(|e| tiff_error(path, e))?
+    {
         Some(v) => v.into_u16_vec().unwrap_or_default(),
         None => Vec::new(),
     };
@@ -171,14 +193,21 @@ fn read_spacing(
         if !centre_lat_deg.is_finite() {
             return Ok(None);
         }
-        return Ok(Some(SourceSpacing::Degrees { x: sx, y: sy, centre_lat_deg }));
+        return Ok(Some(SourceSpacing::Degrees {
+            x: sx,
+            y: sy,
+            centre_lat_deg,
+        }));
     }
     let unit = match geo_key(&keys, PROJ_LINEAR_UNITS) {
         Some(UNIT_FOOT) => 0.3048,
         Some(UNIT_US_SURVEY_FOOT) => 1200.0 / 3937.0,
         _ => 1.0,
     };
-    Ok(Some(SourceSpacing::Metres { x: sx * unit, y: sy * unit }))
+    Ok(Some(SourceSpacing::Metres {
+        x: sx * unit,
+        y: sy * unit,
+    }))
 }
 
 /// Looks up a SHORT-valued key stored inline in a GeoKeyDirectory (header of 4 shorts, then
@@ -227,26 +256,51 @@ impl DemSource for GeoTiff {
             // The data dimensions exclude the padding of right and bottom edge chunks.
             let data_w = chunk_w.min(width - x0);
             let data_h = chunk_h.min(height - y0);
-            let data = self.decoder.read_chunk(chunk).map_err(|e| tiff_error(path, e))?;
+            let data = self
+                .decoder
+                .read_chunk(chunk)
+                .map_err(|e| tiff_error(path, e))?;
             let pixels = data_w as usize * data_h as usize;
             let len = decoded_len(&data);
-            if pixels == 0 || len % pixels != 0 || len < pixels {
+            if pixels == 0 || !len.is_multiple_of(pixels) || len < pixels {
                 return Err(Error::bad_dem(
                     path,
                     format!("TIFF chunk {chunk} decoded to {len} samples for {data_w} x {data_h} pixels"),
                 ));
             }
             let spp = len / pixels;
-            let geometry = ChunkGeometry { x0, y0, data_w, data_h, spp };
+            let geometry = ChunkGeometry {
+                x0,
+                y0,
+                data_w,
+                data_h,
+                spp,
+            };
             match &data {
-                DecodingResult::U8(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
-                DecodingResult::U16(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
-                DecodingResult::U32(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
-                DecodingResult::U64(v) => geometry.emit(v, |s| int_sample(s as f64, nodata), &mut runs, sink)?,
-                DecodingResult::I8(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
-                DecodingResult::I16(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
-                DecodingResult::I32(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
-                DecodingResult::I64(v) => geometry.emit(v, |s| int_sample(s as f64, nodata), &mut runs, sink)?,
+                DecodingResult::U8(v) => {
+                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
+                }
+                DecodingResult::U16(v) => {
+                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
+                }
+                DecodingResult::U32(v) => {
+                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
+                }
+                DecodingResult::U64(v) => {
+                    geometry.emit(v, |s| int_sample(s as f64, nodata), &mut runs, sink)?
+                }
+                DecodingResult::I8(v) => {
+                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
+                }
+                DecodingResult::I16(v) => {
+                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
+                }
+                DecodingResult::I32(v) => {
+                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
+                }
+                DecodingResult::I64(v) => {
+                    geometry.emit(v, |s| int_sample(s as f64, nodata), &mut runs, sink)?
+                }
                 DecodingResult::F16(v) => {
                     let nd = nodata.map(|n| n as f32);
                     geometry.emit(v, |s| f32_sample(s.to_f32(), nd), &mut runs, sink)?
@@ -257,7 +311,13 @@ impl DemSource for GeoTiff {
                 }
                 DecodingResult::F64(v) => geometry.emit(
                     v,
-                    |s| if Some(s) == nodata || !s.is_finite() { f64::NAN } else { s },
+                    |s| {
+                        if Some(s) == nodata || !s.is_finite() {
+                            f64::NAN
+                        } else {
+                            s
+                        }
+                    },
                     &mut runs,
                     sink,
                 )?,
@@ -277,8 +337,12 @@ fn int_sample(v: f64, nodata: Option<f64>) -> f64 {
 }
 
 /// A float sample compared with nodata in f32, so that e.g. `-3.4028234663852886e+38` matches.
+/// Huge sentinels (|nodata| ≥ 1e38) also match within a relative 1e-5, since some writers print
+/// them with few digits (`-3.40282e+38` for `f32::MIN`).
 fn f32_sample(v: f32, nodata: Option<f32>) -> f64 {
-    if Some(v) == nodata || !v.is_finite() {
+    let is_nodata =
+        nodata.is_some_and(|nd| v == nd || (nd.abs() >= 1e38 && (v - nd).abs() <= nd.abs() * 1e-5));
+    if is_nodata || !v.is_finite() {
         f64::NAN
     } else {
         f64::from(v)
@@ -320,7 +384,11 @@ impl ChunkGeometry {
         sink: &mut dyn FnMut(Run<'_>) -> Result<()>,
     ) -> Result<()> {
         let row_len = self.data_w as usize * self.spp;
-        for (r, row) in data.chunks_exact(row_len).take(self.data_h as usize).enumerate() {
+        for (r, row) in data
+            .chunks_exact(row_len)
+            .take(self.data_h as usize)
+            .enumerate()
+        {
             let samples = row.iter().step_by(self.spp).map(|&s| convert(s));
             runs.emit(self.y0 + r as u32, self.x0, samples, sink)?;
         }

@@ -20,7 +20,7 @@ pub(super) fn is_standard_size(size: u64) -> bool {
 
 /// The side `s` of a square tile of `size` = 2·s² bytes, if there is one (s ≥ 2).
 fn side_for_size(size: u64) -> Option<u64> {
-    if size % 2 != 0 {
+    if !size.is_multiple_of(2) {
         return None;
     }
     let posts = size / 2;
@@ -77,7 +77,11 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
     let (width, height) = check_dimensions(path, side, side)?;
     let spacing = parse_tile_name(path).map(|(lat, _lon)| {
         let step = 1.0 / (side - 1) as f64;
-        SourceSpacing::Degrees { x: step, y: step, centre_lat_deg: lat + 0.5 }
+        SourceSpacing::Degrees {
+            x: step,
+            y: step,
+            centre_lat_deg: lat + 0.5,
+        }
     });
     let info = DemInfo {
         format: DemFormat::Hgt,
@@ -87,7 +91,10 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         nodata: Some(f64::from(VOID)),
         sample_type: "int16 big-endian".into(),
     };
-    Ok(Box::new(Hgt { path: path.to_path_buf(), info }))
+    Ok(Box::new(Hgt {
+        path: path.to_path_buf(),
+        info,
+    }))
 }
 
 impl DemSource for Hgt {
@@ -108,10 +115,12 @@ impl DemSource for Hgt {
                     Error::io(path, e)
                 }
             })?;
-            let samples = row.chunks_exact(2).map(|b| match i16::from_be_bytes([b[0], b[1]]) {
-                VOID => f64::NAN,
-                h => f64::from(h),
-            });
+            let samples = row
+                .chunks_exact(2)
+                .map(|b| match i16::from_be_bytes([b[0], b[1]]) {
+                    VOID => f64::NAN,
+                    h => f64::from(h),
+                });
             runs.emit(y, 0, samples, sink)?;
         }
         Ok(())

@@ -72,7 +72,10 @@ pub(super) fn detect_kind(path: &Path) -> Result<DemFormat> {
         ColorType::Grayscale | ColorType::GrayscaleAlpha => return Ok(DemFormat::Png),
         ColorType::Rgb | ColorType::Rgba => {}
         ColorType::Indexed => {
-            return Err(Error::Unsupported { path: path.to_path_buf(), what: "palette PNG".into() })
+            return Err(Error::Unsupported {
+                path: path.to_path_buf(),
+                what: "palette PNG".into(),
+            })
         }
     }
     if depth != BitDepth::Eight {
@@ -89,7 +92,10 @@ pub(super) fn detect_kind(path: &Path) -> Result<DemFormat> {
     if name.contains("terrarium") {
         return Ok(DemFormat::Terrarium);
     }
-    if ["terrain-rgb", "terrain_rgb", "terrainrgb", "mapbox"].iter().any(|h| name.contains(h)) {
+    if ["terrain-rgb", "terrain_rgb", "terrainrgb", "mapbox"]
+        .iter()
+        .any(|h| name.contains(h))
+    {
         return Ok(DemFormat::TerrainRgb);
     }
 
@@ -97,7 +103,9 @@ pub(super) fn detect_kind(path: &Path) -> Result<DemFormat> {
     let mut red_counts = [0u64; 256];
     let mut rows = 0;
     while rows < DETECT_ROWS {
-        let Some(row) = reader.next_row().map_err(|e| png_error(path, e))? else { break };
+        let Some(row) = reader.next_row().map_err(|e| png_error(path, e))? else {
+            break;
+        };
         for px in row.data().chunks_exact(channels) {
             if channels == 3 || px[3] != 0 {
                 red_counts[usize::from(px[0])] += 1;
@@ -119,7 +127,11 @@ pub(super) fn detect_kind(path: &Path) -> Result<DemFormat> {
             break;
         }
     }
-    Ok(if median < TERRAIN_RGB_MAX_RED { DemFormat::TerrainRgb } else { DemFormat::Terrarium })
+    Ok(if median < TERRAIN_RGB_MAX_RED {
+        DemFormat::TerrainRgb
+    } else {
+        DemFormat::Terrarium
+    })
 }
 
 /// How one output row of the decoder turns into heights.
@@ -155,7 +167,10 @@ impl Layout {
                     f64::from(u16::from_be_bytes([px[0], px[1]]))
                 }
             }
-            Layout::Rgb { channels, terrarium } => {
+            Layout::Rgb {
+                channels,
+                terrarium,
+            } => {
                 if channels == 4 && px[3] == 0 {
                     return f64::NAN;
                 }
@@ -171,7 +186,12 @@ impl Layout {
 }
 
 /// Works out how to read the decoder's output as `format`, or says why it cannot be.
-fn layout_for(path: &Path, format: DemFormat, colour: ColorType, depth: BitDepth) -> Result<Layout> {
+fn layout_for(
+    path: &Path,
+    format: DemFormat,
+    colour: ColorType,
+    depth: BitDepth,
+) -> Result<Layout> {
     let bytes = match depth {
         BitDepth::Eight => 1,
         BitDepth::Sixteen => 2,
@@ -184,9 +204,10 @@ fn layout_for(path: &Path, format: DemFormat, colour: ColorType, depth: BitDepth
     };
     let gray = matches!(colour, ColorType::Grayscale | ColorType::GrayscaleAlpha);
     match format {
-        DemFormat::Png if gray => {
-            Ok(Layout::Gray { bytes, alpha: colour == ColorType::GrayscaleAlpha })
-        }
+        DemFormat::Png if gray => Ok(Layout::Gray {
+            bytes,
+            alpha: colour == ColorType::GrayscaleAlpha,
+        }),
         DemFormat::Png => Err(Error::bad_dem(
             path,
             "colour PNG cannot be read as a grayscale height PNG (use terrain-rgb or terrarium)",
@@ -203,7 +224,10 @@ fn layout_for(path: &Path, format: DemFormat, colour: ColorType, depth: BitDepth
             channels: colour.samples(),
             terrarium: format == DemFormat::Terrarium,
         }),
-        _ => Err(Error::bad_dem(path, format!("a PNG cannot be read as {format}"))),
+        _ => Err(Error::bad_dem(
+            path,
+            format!("a PNG cannot be read as {format}"),
+        )),
     }
 }
 
@@ -221,13 +245,27 @@ pub(super) fn open(path: &Path, format: DemFormat) -> Result<Box<dyn DemSource>>
     let layout = layout_for(path, format, colour, depth)?;
     let sample_type = match layout {
         Layout::Gray { bytes, alpha } => {
-            format!("uint{} gray{}", bytes * 8, if alpha { "+alpha" } else { "" })
+            format!(
+                "uint{} gray{}",
+                bytes * 8,
+                if alpha { "+alpha" } else { "" }
+            )
         }
         Layout::Rgb { channels: 3, .. } => "uint8 rgb".to_string(),
         Layout::Rgb { .. } => "uint8 rgba".to_string(),
     };
-    let info = DemInfo { format, width, height, spacing: None, nodata: None, sample_type };
-    Ok(Box::new(PngSource { path: path.to_path_buf(), info }))
+    let info = DemInfo {
+        format,
+        width,
+        height,
+        spacing: None,
+        nodata: None,
+        sample_type,
+    };
+    Ok(Box::new(PngSource {
+        path: path.to_path_buf(),
+        info,
+    }))
 }
 
 impl DemSource for PngSource {
@@ -255,11 +293,12 @@ impl DemSource for PngSource {
             if data.len() < row_bytes {
                 return Err(Error::bad_dem(path, format!("PNG row {y} is too short")));
             }
-            let samples = data[..row_bytes].chunks_exact(bpp).map(|px| layout.height(px));
+            let samples = data[..row_bytes]
+                .chunks_exact(bpp)
+                .map(|px| layout.height(px));
             runs.emit(y, 0, samples, sink)?;
         }
         // Checks the rest of the image data (checksums, trailing chunks).
         reader.finish().map_err(|e| png_error(path, e))
-
     }
 }
