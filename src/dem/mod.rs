@@ -21,7 +21,8 @@ use crate::error::{Error, IoContext, Result};
 /// Input formats. The names are those of `--format`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum DemFormat {
-    /// GeoTIFF / TIFF: 8/16/32-bit integers, f32/f64; strips or tiles; uncompressed, deflate, LZW.
+    /// GeoTIFF / TIFF: 8/16/32/64-bit integers, f16/f32/f64; strips or tiles; uncompressed,
+    /// deflate, LZW, PackBits (whatever the `tiff` crate decodes).
     GeoTiff,
     /// Grayscale PNG, 8 or 16 bits: the sample value is the height.
     Png,
