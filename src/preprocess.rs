@@ -72,8 +72,9 @@ impl SharedRows {
     }
 }
 
-/// The nested error and radius of `(x, y)` from its own raw error and its children's records.
-#[inline(always)]
+/// The nested error and radius of `(x, y)` from its own raw error and its children's records
+/// (general form, any vertex; the reference that the specialised level loops must match).
+#[cfg(test)]
 fn nested(grid: Grid, spacing_m: [f64; 2], get: impl Fn(u32, u32) -> Record, x: u32, y: u32) -> (f64, f64) {
     let me = get(x, y);
     let (mut err, mut rad) = match grid.split_edge(x, y) {
@@ -89,8 +90,93 @@ fn nested(grid: Grid, spacing_m: [f64; 2], get: impl Fn(u32, u32) -> Record, x: 
     (err, rad)
 }
 
+/// Folds child `(cx, cy)` into the running error and radius of `(x, y, z)`.
+#[inline(always)]
+fn fold_child(spacing_m: [f64; 2], rows: &SharedRows, x: u32, y: u32, z: f32, cx: u32, cy: u32, acc: &mut (f64, f64)) {
+    let c = rows.get(cx, cy);
+    acc.0 = acc.0.max(c.error as f64);
+    acc.1 = acc.1.max(distance_m(spacing_m, (x, y, z), (cx, cy, c.z)) + c.radius as f64);
+}
+
+/// One row of one level: the vertices, their split edges and their children are known from the
+/// level alone, so this avoids the general classification of [`nested`] (same arithmetic, same
+/// results; a test compares the two).
+#[inline(always)]
+fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: u32) -> u64 {
+    let m = grid.max_coord();
+    let odd = level % 2 == 1;
+    let step = 1u32 << ((level - 1) / 2);
+    let half = step / 2; // children of an edge midpoint are half a step away diagonally
+    let mut count = 0u64;
+    let mut finish = |x: u32, acc: (f64, f64)| {
+        let err = if (x, y) == grid.centre() { f64::INFINITY } else { acc.0 };
+        rows.set_bounds(x, y, f32_up(err), f32_up(acc.1));
+        count += 1;
+    };
+    if odd && (y / step) % 2 == 0 {
+        // Midpoints of horizontal edges: x = step, 3·step, …
+        let mut x = step;
+        while x < m {
+            let z = rows.get(x, y).z;
+            let mut acc = (raw_error(z, rows.get(x - step, y).z, rows.get(x + step, y).z), 0.0);
+            if half > 0 {
+                if y < m {
+                    fold_child(spacing_m, rows, x, y, z, x + half, y + half, &mut acc);
+                    fold_child(spacing_m, rows, x, y, z, x - half, y + half, &mut acc);
+                }
+                if y > 0 {
+                    fold_child(spacing_m, rows, x, y, z, x - half, y - half, &mut acc);
+                    fold_child(spacing_m, rows, x, y, z, x + half, y - half, &mut acc);
+                }
+            }
+            finish(x, acc);
+            x += 2 * step;
+        }
+    } else if odd {
+        // Midpoints of vertical edges: x = 0, 2·step, …, 2^n.
+        let mut x = 0;
+        while x <= m {
+            let z = rows.get(x, y).z;
+            let mut acc = (raw_error(z, rows.get(x, y - step).z, rows.get(x, y + step).z), 0.0);
+            if half > 0 {
+                if x < m {
+                    fold_child(spacing_m, rows, x, y, z, x + half, y + half, &mut acc);
+                    fold_child(spacing_m, rows, x, y, z, x + half, y - half, &mut acc);
+                }
+                if x > 0 {
+                    fold_child(spacing_m, rows, x, y, z, x - half, y + half, &mut acc);
+                    fold_child(spacing_m, rows, x, y, z, x - half, y - half, &mut acc);
+                }
+            }
+            finish(x, acc);
+            x += 2 * step;
+        }
+    } else {
+        // Square centres: x = step, 3·step, …; they bisect the diagonal joining the corner whose
+        // coordinates are even multiples of 2·step with the one whose are odd multiples.
+        let mut x = step;
+        while x < m {
+            let z = rows.get(x, y).z;
+            let rising = (((x - step) / (2 * step)) + ((y - step) / (2 * step))) % 2 == 0;
+            let (za, zb) = if rising {
+                (rows.get(x - step, y - step).z, rows.get(x + step, y + step).z)
+            } else {
+                (rows.get(x - step, y + step).z, rows.get(x + step, y - step).z)
+            };
+            let mut acc = (raw_error(z, za, zb), 0.0);
+            fold_child(spacing_m, rows, x, y, z, x + step, y, &mut acc);
+            fold_child(spacing_m, rows, x, y, z, x, y + step, &mut acc);
+            fold_child(spacing_m, rows, x, y, z, x - step, y, &mut acc);
+            fold_child(spacing_m, rows, x, y, z, x, y - step, &mut acc);
+            finish(x, acc);
+            x += 2 * step;
+        }
+    }
+    count
+}
+
 /// Computes error and radius for every vertex of a row-major `grid` whose heights are set.
-/// `progress` is called with the number of vertices finished after each row batch.
+/// `progress` is called with the number of vertices finished after each row.
 pub fn compute_bounds(
     grid: Grid,
     spacing_m: [f64; 2],
@@ -101,33 +187,15 @@ pub fn compute_bounds(
     let side = grid.size();
     assert_eq!(records.len() as u64, grid.vertices(), "row-major grid expected");
     let shared = SharedRows { ptr: records.as_mut_ptr(), side: side as usize };
-    let centre = grid.centre();
     for level in 1..=grid.levels() {
-        // Rows holding vertices of this level and, per row, the first x and the x stride.
-        let odd = level % 2 == 1;
         let step = 1u32 << ((level - 1) / 2);
-        let rows: Vec<u32> = if odd { (0..side).step_by(step as usize).collect() } else { (step..side).step_by(2 * step as usize).collect() };
+        // Edge midpoints lie on every row that is a multiple of step; square centres on odd
+        // multiples.
+        let (first, stride) = if level % 2 == 1 { (0, step) } else { (step, 2 * step) };
+        let rows: Vec<u32> = (first..side).step_by(stride as usize).collect();
         rows.par_iter().try_for_each(|&y| -> Result<()> {
             check_cancel()?;
-            // Edge midpoints: on rows y/step even they sit at odd multiples of step; on odd rows at
-            // even multiples. Square centres: odd multiples on odd rows.
-            let x0 = if odd && (y / step) % 2 == 1 { 0 } else { step };
-            let mut count = 0u64;
-            let mut x = x0;
-            while x < side {
-                debug_assert!(matches!(
-                    grid.kind(x, y),
-                    VertexKind::EdgeMidpoint { .. } | VertexKind::SquareCentre { .. }
-                ));
-                let (mut err, rad) = nested(grid, spacing_m, |a, b| shared.get(a, b), x, y);
-                if (x, y) == centre {
-                    err = f64::INFINITY;
-                }
-                shared.set_bounds(x, y, f32_up(err), f32_up(rad));
-                count += 1;
-                x += 2 * step;
-            }
-            progress(count);
+            progress(level_row(grid, spacing_m, &shared, level, y));
             Ok(())
         })?;
     }
@@ -197,6 +265,31 @@ mod tests {
 
     fn run(g: Grid, spacing: [f64; 2], recs: &mut [Record]) {
         compute_bounds(g, spacing, recs, &|_| {}, &|| Ok(())).unwrap();
+    }
+
+    #[test]
+    fn level_loops_match_the_general_definition() {
+        // Rough pseudo-random terrain with non-square posts; every stored value must equal the
+        // general recomputation from its children (bit for bit).
+        let (g, mut recs) = grid_with(6, |x, y| {
+            let h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+            (h.wrapping_mul(6364136223846793005) >> 40) as f32 / 1000.0
+        });
+        let spacing = [3.0, 7.5];
+        run(g, spacing, &mut recs);
+        let s = g.size() as usize;
+        let get = |x: u32, y: u32| recs[y as usize * s + x as usize];
+        for y in 0..g.size() {
+            for x in 0..g.size() {
+                if g.kind(x, y) == VertexKind::Corner {
+                    continue;
+                }
+                let (e, r) = nested(g, spacing, get, x, y);
+                let e = if (x, y) == g.centre() { f64::INFINITY } else { e };
+                assert_eq!((get(x, y).error, get(x, y).radius), (f32_up(e), f32_up(r)), "({x},{y})");
+                assert_eq!(nesting_violation(g, spacing, get, x, y), None);
+            }
+        }
     }
 
     #[test]
