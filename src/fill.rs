@@ -51,23 +51,23 @@ pub fn fill_voids(records: &mut [Record], side: usize, width: usize, height: usi
         records.par_chunks_mut(side).take(height).for_each(|row| {
             let row = &mut row[..width];
             let mut last: Option<(usize, f32)> = None;
-            for x in 0..width {
-                if row[x].z.is_nan() {
+            for (x, r) in row.iter_mut().enumerate() {
+                if r.z.is_nan() {
                     if let Some((lx, v)) = last {
-                        accumulate(&mut row[x], v, x - lx);
+                        accumulate(r, v, x - lx);
                     }
                 } else {
-                    last = Some((x, row[x].z));
+                    last = Some((x, r.z));
                 }
             }
             last = None;
-            for x in (0..width).rev() {
-                if row[x].z.is_nan() {
+            for (x, r) in row.iter_mut().enumerate().rev() {
+                if r.z.is_nan() {
                     if let Some((lx, v)) = last {
-                        accumulate(&mut row[x], v, lx - x);
+                        accumulate(r, v, lx - x);
                     }
                 } else {
-                    last = Some((x, row[x].z));
+                    last = Some((x, r.z));
                 }
             }
         });

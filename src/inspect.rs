@@ -49,7 +49,7 @@ pub struct Geographic {
 
 pub fn info(file: &TerrainFile) -> Info {
     let h = file.header();
-    let geographic = (h.flags & FLAG_GEOGRAPHIC != 0).then(|| Geographic {
+    let geographic = (h.flags & FLAG_GEOGRAPHIC != 0).then_some(Geographic {
         spacing_deg: h.source_spacing_deg,
         centre_lat_deg: h.source_centre_lat_deg,
     });

@@ -92,10 +92,10 @@ fn nested(grid: Grid, spacing_m: [f64; 2], get: impl Fn(u32, u32) -> Record, x: 
 
 /// Folds child `(cx, cy)` into the running error and radius of `(x, y, z)`.
 #[inline(always)]
-fn fold_child(spacing_m: [f64; 2], rows: &SharedRows, x: u32, y: u32, z: f32, cx: u32, cy: u32, acc: &mut (f64, f64)) {
+fn fold_child(spacing_m: [f64; 2], rows: &SharedRows, me: (u32, u32, f32), (cx, cy): (u32, u32), acc: &mut (f64, f64)) {
     let c = rows.get(cx, cy);
     acc.0 = acc.0.max(c.error as f64);
-    acc.1 = acc.1.max(distance_m(spacing_m, (x, y, z), (cx, cy, c.z)) + c.radius as f64);
+    acc.1 = acc.1.max(distance_m(spacing_m, me, (cx, cy, c.z)) + c.radius as f64);
 }
 
 /// One row of one level: the vertices, their split edges and their children are known from the
@@ -113,7 +113,7 @@ fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: 
         rows.set_bounds(x, y, f32_up(err), f32_up(acc.1));
         count += 1;
     };
-    if odd && (y / step) % 2 == 0 {
+    if odd && (y / step).is_multiple_of(2) {
         // Midpoints of horizontal edges: x = step, 3·step, …
         let mut x = step;
         while x < m {
@@ -121,12 +121,12 @@ fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: 
             let mut acc = (raw_error(z, rows.get(x - step, y).z, rows.get(x + step, y).z), 0.0);
             if half > 0 {
                 if y < m {
-                    fold_child(spacing_m, rows, x, y, z, x + half, y + half, &mut acc);
-                    fold_child(spacing_m, rows, x, y, z, x - half, y + half, &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x + half, y + half), &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x - half, y + half), &mut acc);
                 }
                 if y > 0 {
-                    fold_child(spacing_m, rows, x, y, z, x - half, y - half, &mut acc);
-                    fold_child(spacing_m, rows, x, y, z, x + half, y - half, &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x - half, y - half), &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x + half, y - half), &mut acc);
                 }
             }
             finish(x, acc);
@@ -140,12 +140,12 @@ fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: 
             let mut acc = (raw_error(z, rows.get(x, y - step).z, rows.get(x, y + step).z), 0.0);
             if half > 0 {
                 if x < m {
-                    fold_child(spacing_m, rows, x, y, z, x + half, y + half, &mut acc);
-                    fold_child(spacing_m, rows, x, y, z, x + half, y - half, &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x + half, y + half), &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x + half, y - half), &mut acc);
                 }
                 if x > 0 {
-                    fold_child(spacing_m, rows, x, y, z, x - half, y + half, &mut acc);
-                    fold_child(spacing_m, rows, x, y, z, x - half, y - half, &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x - half, y + half), &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x - half, y - half), &mut acc);
                 }
             }
             finish(x, acc);
@@ -157,17 +157,17 @@ fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: 
         let mut x = step;
         while x < m {
             let z = rows.get(x, y).z;
-            let rising = (((x - step) / (2 * step)) + ((y - step) / (2 * step))) % 2 == 0;
+            let rising = (((x - step) / (2 * step)) + ((y - step) / (2 * step))).is_multiple_of(2);
             let (za, zb) = if rising {
                 (rows.get(x - step, y - step).z, rows.get(x + step, y + step).z)
             } else {
                 (rows.get(x - step, y + step).z, rows.get(x + step, y - step).z)
             };
             let mut acc = (raw_error(z, za, zb), 0.0);
-            fold_child(spacing_m, rows, x, y, z, x + step, y, &mut acc);
-            fold_child(spacing_m, rows, x, y, z, x, y + step, &mut acc);
-            fold_child(spacing_m, rows, x, y, z, x - step, y, &mut acc);
-            fold_child(spacing_m, rows, x, y, z, x, y - step, &mut acc);
+            fold_child(spacing_m, rows, (x, y, z), (x + step, y), &mut acc);
+            fold_child(spacing_m, rows, (x, y, z), (x, y + step), &mut acc);
+            fold_child(spacing_m, rows, (x, y, z), (x - step, y), &mut acc);
+            fold_child(spacing_m, rows, (x, y, z), (x, y - step), &mut acc);
             finish(x, acc);
             x += 2 * step;
         }
@@ -218,12 +218,11 @@ pub fn nesting_violation(
     if !me.z.is_finite() {
         return Some(format!("({x}, {y}): height {} is not finite", me.z));
     }
-    if grid.kind(x, y) == VertexKind::Corner || (x, y) == grid.centre() {
-        if me.error != f32::INFINITY {
-            return Some(format!("({x}, {y}): corner/centre error {} is not +inf", me.error));
-        }
+    let always_active = grid.kind(x, y) == VertexKind::Corner || (x, y) == grid.centre();
+    if always_active && me.error != f32::INFINITY {
+        return Some(format!("({x}, {y}): corner/centre error {} is not +inf", me.error));
     }
-    if !(me.radius >= 0.0) || me.error.is_nan() {
+    if me.radius.is_nan() || me.radius < 0.0 || me.error.is_nan() {
         return Some(format!("({x}, {y}): error {} / radius {} invalid", me.error, me.radius));
     }
     if let Some([a, b]) = grid.split_edge(x, y) {

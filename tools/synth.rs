@@ -147,7 +147,7 @@ fn write_png(file: BufWriter<File>, args: &Args, octaves: u32) -> Result<()> {
 
 fn main() -> Result<()> {
     let args = Args::parse();
-    if args.size < 2 || !(args.spacing > 0.0) {
+    if args.size < 2 || args.spacing.is_nan() || args.spacing <= 0.0 {
         bail!("--size must be at least 2 and --spacing positive");
     }
     let octaves = 32 - args.size.leading_zeros(); // down to about one post per wavelength
