@@ -29,9 +29,7 @@
 //! refinement levels `2(n − k) + 1` and `2(n − k) + 2`, so the file is coarse to fine up to that
 //! pairing.
 
-use super::interleaved::{
-    black_coords, black_offset, corner_coords, corner_index, white_coords, white_offset,
-};
+use super::interleaved::{black_coords, corner_coords, corner_index, level_offset, white_coords};
 use super::{morton, Layout, LayoutKind, Vertex};
 use crate::hierarchy::{split_children, Grid};
 
@@ -69,17 +67,16 @@ impl Layout for Embedded {
             return corner_index(x, y);
         }
         let k = n - t;
-        let start = 4 + morton::quad_sum(k);
-        if (x >> t) & (y >> t) & 1 == 1 {
-            if k == 1 {
-                return 4;
-            }
-            let o = white_offset(x, y, t);
-            let d = o >> (2 * (k - 2));
-            start + ((3 - d) << (2 * (k - 1))) + o
-        } else {
-            start + black_offset(x, y, t, n)
+        let (white, o) = level_offset(x, y, t, n);
+        if white && k == 1 {
+            return 4;
         }
+        // A white node at level k >= 2 goes into the ghost subtree with prefix (3 − d, d), d its
+        // top digit: add (3 − d)·4^(k−1). Computed for black nodes too (hence the wrapping
+        // arithmetic; the value is then discarded) so that the selection needs no branch.
+        let d = o >> ((2 * k).wrapping_sub(4) & 63);
+        let lift = 3u64.wrapping_sub(d) << (2 * (k - 1));
+        4 + morton::quad_sum(k) + o + if white { lift } else { 0 }
     }
 
     #[inline]
@@ -115,31 +112,53 @@ impl Layout for Embedded {
 
     #[inline]
     fn split_children(&self, apex: Vertex, split: Vertex) -> [Vertex; 2] {
-        let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
         let (i, j) = (apex.index, split.index);
-        let (a, b) = if i > 4 {
-            let base = 4 * i - 11;
-            let s = 2 * i + j;
-            (base + ((s + 2) & 3), base + ((s + 3) & 3))
-        } else if i == 4 {
-            // The white level-2 centres, white digit d at slot 21 − 3d.
-            (21 - 3 * ((j + 2) & 3), 21 - 3 * ((j + 3) & 3))
-        } else {
-            // A corner apex (only for the two initial triangles): no quadtree shortcut.
-            return [self.vertex(l.0, l.1), self.vertex(r.0, r.1)];
-        };
+        if i <= 4 {
+            return self.root_split_children(apex, split);
+        }
+        let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
+        let base = 4 * i - 11;
+        let s = 2 * i + j;
         [
             Vertex {
                 x: l.0,
                 y: l.1,
-                index: a,
+                index: base + ((s + 2) & 3),
             },
             Vertex {
                 x: r.0,
                 y: r.1,
-                index: b,
+                index: base + ((s + 3) & 3),
             },
         ]
+    }
+}
+
+impl Embedded {
+    /// [`Layout::split_children`] for the apexes without the quadtree rule: the centre, whose
+    /// children (the white level-2 centres, white digit `d` at slot `21 − 3d`) are not its
+    /// quadtree children, and the corners of the two initial triangles.
+    #[cold]
+    #[inline(never)]
+    fn root_split_children(&self, apex: Vertex, split: Vertex) -> [Vertex; 2] {
+        let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
+        if apex.index == 4 {
+            let j = split.index;
+            [
+                Vertex {
+                    x: l.0,
+                    y: l.1,
+                    index: 21 - 3 * ((j + 2) & 3),
+                },
+                Vertex {
+                    x: r.0,
+                    y: r.1,
+                    index: 21 - 3 * ((j + 3) & 3),
+                },
+            ]
+        } else {
+            [self.vertex(l.0, l.1), self.vertex(r.0, r.1)]
+        }
     }
 }
 

@@ -69,14 +69,27 @@ pub(crate) fn corner_coords(i: u64, m: u32) -> (u32, u32) {
     (east * m, north * m)
 }
 
-/// Within-level offset of the square centre `(x, y)` at step `2^t`.
+/// Whether the non-corner position `(x, y)` with step `2^t` is white (a square centre), and its
+/// offset within its white or black level `k = n − t` (see the module docs).
+///
+/// Both cases are `morton(X ^ Y, Y)`: white `X = x >> (t+1)`, `Y = y >> (t+1)`; black
+/// `X = (x − y + N) >> (t+1)`, `Y = ((x + y) >> (t+1)) ^ (2^(k−1) − 1)`. The operands are selected
+/// without branching, since white and black vertices alternate unpredictably.
 #[inline(always)]
-pub(crate) fn white_offset(x: u32, y: u32, t: u32) -> u64 {
-    let (bx, by) = ((x as u64 >> (t + 1)) as u32, (y as u64 >> (t + 1)) as u32);
-    morton::encode(bx ^ by, by)
+pub(crate) fn level_offset(x: u32, y: u32, t: u32, n: u32) -> (bool, u64) {
+    let white = (x >> t) & (y >> t) & 1 == 1;
+    let (x, y) = (x as u64, y as u64);
+    let low = (1u64 << (n - t - 1)) - 1;
+    let (a, b, flip) = if white {
+        (x, y, 0)
+    } else {
+        (x + (1u64 << n) - y, x + y, low)
+    };
+    let (xs, ys) = ((a >> (t + 1)) as u32, ((b >> (t + 1)) ^ flip) as u32);
+    (white, morton::encode(xs ^ ys, ys))
 }
 
-/// Inverse of [`white_offset`].
+/// Inverse of [`level_offset`] for a white node.
 #[inline(always)]
 pub(crate) fn white_coords(offset: u64, t: u32) -> (u32, u32) {
     let (a, by) = morton::decode(offset);
@@ -87,18 +100,7 @@ pub(crate) fn white_coords(offset: u64, t: u32) -> (u32, u32) {
     )
 }
 
-/// Within-level offset of the edge midpoint `(x, y)` at step `2^t` on black level `k = n − t`.
-#[inline(always)]
-pub(crate) fn black_offset(x: u32, y: u32, t: u32, n: u32) -> u64 {
-    let k = n - t;
-    let u = x as u64 + y as u64;
-    let v = x as u64 + (1u64 << n) - y as u64;
-    let p = (u >> (t + 1)) as u32 ^ ((1u32 << (k - 1)) - 1);
-    let q = (v >> (t + 1)) as u32;
-    morton::encode(q ^ p, p)
-}
-
-/// Inverse of [`black_offset`]; `None` for a ghost.
+/// Inverse of [`level_offset`] for a black node; `None` for a ghost.
 #[inline(always)]
 pub(crate) fn black_coords(offset: u64, t: u32, n: u32) -> Option<(u32, u32)> {
     let k = n - t;
@@ -131,13 +133,11 @@ impl Layout for Interleaved {
         if t >= n {
             return corner_index(x, y);
         }
-        // Level k = n − t; white level k starts at 4 + 5·(4^(k−1) − 1)/3.
-        let start = 4 + 5 * morton::quad_sum(n - t - 1);
-        if (x >> t) & (y >> t) & 1 == 1 {
-            start + white_offset(x, y, t)
-        } else {
-            start + (1u64 << (2 * (n - t - 1))) + black_offset(x, y, t, n)
-        }
+        // Level k = n − t: white level k starts at 4 + 5·(4^(k−1) − 1)/3, black level k 4^(k−1)
+        // records later.
+        let k1 = n - t - 1;
+        let (white, offset) = level_offset(x, y, t, n);
+        4 + 5 * morton::quad_sum(k1) + ((!white as u64) << (2 * k1)) + offset
     }
 
     #[inline]
@@ -170,12 +170,11 @@ impl Layout for Interleaved {
 
     #[inline]
     fn split_children(&self, apex: Vertex, split: Vertex) -> [Vertex; 2] {
-        let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
         let (i, j) = (apex.index, split.index);
         if i < 4 {
-            // A corner apex (only for the two initial triangles): no quadtree shortcut.
-            return [self.vertex(l.0, l.1), self.vertex(r.0, r.1)];
+            return self.corner_split_children(apex, split);
         }
+        let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
         let base = 4 * i - 7;
         let s = 2 * i + j;
         [
@@ -190,6 +189,17 @@ impl Layout for Interleaved {
                 index: base + ((s + 3) & 3),
             },
         ]
+    }
+}
+
+impl Interleaved {
+    /// [`Layout::split_children`] for a corner apex (only the two initial triangles, split at the
+    /// centre): no quadtree shortcut, go through coordinates.
+    #[cold]
+    #[inline(never)]
+    fn corner_split_children(&self, apex: Vertex, split: Vertex) -> [Vertex; 2] {
+        let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
+        [self.vertex(l.0, l.1), self.vertex(r.0, r.1)]
     }
 }
 

@@ -44,11 +44,8 @@ pub(crate) fn decode(z: u64) -> (u32, u32) {
 /// quadtree), for `0 <= k <= 32`.
 #[inline(always)]
 pub(crate) fn quad_sum(k: u32) -> u64 {
-    if k == 0 {
-        0
-    } else {
-        0x5555_5555_5555_5555u64 >> (64 - 2 * k)
-    }
+    // Branch-free: the low 2k bits of ...0101.
+    (((1u128 << (2 * k)) - 1) as u64) & 0x5555_5555_5555_5555
 }
 
 #[cfg(test)]
