@@ -29,8 +29,8 @@
 //! `U = x + y` and `V = x − y + N` (both odd multiples of `h` in `(0, 2N)`), `P = U >> (t+1)`,
 //! `Q = V >> (t+1)` (`k`-bit numbers). The top digit picks the level-1 node (w, s, e, n = 0..3,
 //! the quadrants `(P, Q)` high bits `00, 01, 11, 10`), the others the axis-aligned children;
-//! both cases reduce to the white formula with `Y = P` with its low `k − 1` bits inverted and
-//! `X = Q`: offset `morton(Q ^ P', P')`.
+//! both cases reduce to the white formula with `Y = P' = P ^ (2^(k−1) − 1)` (`P` with its low
+//! `k − 1` bits inverted) and `X = Q`: offset `morton(Q ^ P', P')`.
 //!
 //! **Children during refinement** (SOAR's `submesh_refine(i, j)`, apex `i`, split vertex `j`): the
 //! two DAG children of `j` on `i`'s side are quadtree children of `i`, left first
