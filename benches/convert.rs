@@ -16,7 +16,11 @@ fn synthetic(grid: Grid) -> Vec<Record> {
         .flat_map(|y| (0..s).map(move |x| (x, y)))
         .map(|(x, y)| {
             let (fx, fy) = (x as f32 * 0.013, y as f32 * 0.017);
-            Record { z: 300.0 * (fx.sin() + (fy * 1.7).cos()) + 20.0 * (fx * 9.0).sin() * (fy * 7.0).cos(), error: 0.0, radius: 0.0 }
+            Record {
+                z: 300.0 * (fx.sin() + (fy * 1.7).cos()) + 20.0 * (fx * 9.0).sin() * (fy * 7.0).cos(),
+                error: 0.0,
+                radius: 0.0,
+            }
         })
         .collect()
 }
@@ -52,7 +56,9 @@ fn bench(c: &mut Criterion) {
     });
     let bytes: &[u8] = bytemuck::cast_slice(&base);
     g.throughput(Throughput::Bytes(bytes.len() as u64));
-    g.bench_function(BenchmarkId::new("checksum", grid.size()), |b| b.iter(|| payload_checksum(std::hint::black_box(bytes))));
+    g.bench_function(BenchmarkId::new("checksum", grid.size()), |b| {
+        b.iter(|| payload_checksum(std::hint::black_box(bytes)))
+    });
     g.finish();
 }
 

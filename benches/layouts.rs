@@ -27,9 +27,7 @@ impl Rng {
 fn positions(g: Grid) -> Vec<(u32, u32)> {
     let mut rng = Rng(0x1234_5678_9ABC_DEF1);
     let s = g.size() as u64;
-    (0..SAMPLES)
-        .map(|_| (rng.below(s) as u32, rng.below(s) as u32))
-        .collect()
+    (0..SAMPLES).map(|_| (rng.below(s) as u32, rng.below(s) as u32)).collect()
 }
 
 /// Valid refinement steps: a split vertex above level 1 (not the centre) and one of its DAG
@@ -54,10 +52,8 @@ fn bench_layout<L: Layout>(c: &mut Criterion, name: &str, layout: L) {
     let g = layout.grid();
     let pos = positions(g);
     let idx: Vec<u64> = pos.iter().map(|&(x, y)| layout.index(x, y)).collect();
-    let steps: Vec<(Vertex, Vertex)> = pairs(g)
-        .into_iter()
-        .map(|(a, s)| (layout.vertex(a.0, a.1), layout.vertex(s.0, s.1)))
-        .collect();
+    let steps: Vec<(Vertex, Vertex)> =
+        pairs(g).into_iter().map(|(a, s)| (layout.vertex(a.0, a.1), layout.vertex(s.0, s.1))).collect();
     // Make sure the sample is valid before timing it.
     for &(a, s) in &steps[..1000] {
         let want = split_children((a.x, a.y), (s.x, s.y)).map(|(x, y)| layout.vertex(x, y));

@@ -155,7 +155,10 @@ impl Prefault {
 }
 
 /// Spacing in metres and how it was obtained.
-fn resolve_spacing(opts: &ConvertOptions, source: Option<SourceSpacing>) -> ([f64; 2], &'static str, u32, f64, [f64; 2]) {
+fn resolve_spacing(
+    opts: &ConvertOptions,
+    source: Option<SourceSpacing>,
+) -> ([f64; 2], &'static str, u32, f64, [f64; 2]) {
     let nan2 = [f64::NAN, f64::NAN];
     let (lat, deg) = match source {
         Some(SourceSpacing::Degrees { x, y, centre_lat_deg }) => (centre_lat_deg, [x, y]),
@@ -171,9 +174,17 @@ fn resolve_spacing(opts: &ConvertOptions, source: Option<SourceSpacing>) -> ([f6
             let m_per_deg = EARTH_RADIUS_M * std::f64::consts::PI / 180.0;
             let sx = x.abs() * m_per_deg * centre_lat_deg.to_radians().cos();
             let sy = y.abs() * m_per_deg;
-            ([sx, sy], "file (degrees converted at the centre latitude)", FLAG_GEOGRAPHIC, centre_lat_deg, [x.abs(), y.abs()])
+            (
+                [sx, sy],
+                "file (degrees converted at the centre latitude)",
+                FLAG_GEOGRAPHIC,
+                centre_lat_deg,
+                [x.abs(), y.abs()],
+            )
         }
-        None => ([1.0, 1.0], "assumed 1 m (the file does not say; pass --spacing)", FLAG_SPACING_ASSUMED, f64::NAN, nan2),
+        None => {
+            ([1.0, 1.0], "assumed 1 m (the file does not say; pass --spacing)", FLAG_SPACING_ASSUMED, f64::NAN, nan2)
+        }
     }
 }
 
@@ -193,7 +204,10 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
     let mut steps = StepSeconds::default();
 
     if opts.z_scale == 0.0 || !opts.z_scale.is_finite() || !opts.z_offset.is_finite() {
-        return Err(Error::InvalidArgument(format!("--z-scale {} / --z-offset {} must be finite, scale non-zero", opts.z_scale, opts.z_offset)));
+        return Err(Error::InvalidArgument(format!(
+            "--z-scale {} / --z-offset {} must be finite, scale non-zero",
+            opts.z_scale, opts.z_offset
+        )));
     }
     if let Some([sx, sy]) = opts.spacing_m {
         if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0) {
@@ -210,7 +224,8 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
         height: height as u64,
         max_n: MAX_N,
     })?;
-    let layout = AnyLayout::new(opts.layout, grid, opts.tile.unwrap_or(0), RECORD_BYTES).map_err(Error::InvalidArgument)?;
+    let layout =
+        AnyLayout::new(opts.layout, grid, opts.tile.unwrap_or(0), RECORD_BYTES).map_err(Error::InvalidArgument)?;
     let (spacing_m, spacing_source, flags, centre_lat, spacing_deg) = resolve_spacing(opts, info.spacing);
 
     let out_dir = match output.parent() {
@@ -254,7 +269,13 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
                 cancel::check()?;
                 let end = run.x0 as u64 + run.values.len() as u64;
                 if run.row >= height || end > width as u64 {
-                    return Err(Error::bad_dem(input, format!("reader produced samples outside {width}x{height} (row {}, columns {}..{end})", run.row, run.x0)));
+                    return Err(Error::bad_dem(
+                        input,
+                        format!(
+                            "reader produced samples outside {width}x{height} (row {}, columns {}..{end})",
+                            run.row, run.x0
+                        ),
+                    ));
                 }
                 let y = (height - 1 - run.row) as usize;
                 let dst = &mut grid_records[y * side + run.x0 as usize..y * side + end as usize];
@@ -283,7 +304,8 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
 
         // 2. Fill voids and pad.
         let t = Instant::now();
-        let filled = if nan_count > 0 { fill::fill_voids(grid_records, side, width as usize, height as usize) } else { 0 };
+        let filled =
+            if nan_count > 0 { fill::fill_voids(grid_records, side, width as usize, height as usize) } else { 0 };
         debug_assert_eq!(filled, nan_count);
         fill::pad(grid_records, side, width as usize, height as usize);
         steps.fill = t.elapsed().as_secs_f64();
@@ -372,7 +394,13 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
 }
 
 /// Writes `dst[i] = grid[coords(i)]` for every used slot, in parallel chunks of the output.
-fn gather(layout: &AnyLayout, grid: &[Record], side: usize, dst: &mut [Record], progress: &(dyn Fn(u64) + Sync)) -> Result<()> {
+fn gather(
+    layout: &AnyLayout,
+    grid: &[Record],
+    side: usize,
+    dst: &mut [Record],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<()> {
     struct Gather<'a> {
         grid: &'a [Record],
         side: usize,

@@ -23,33 +23,15 @@ pub enum Error {
     #[error("{}: not a relief terrain file (bad magic)", path.display())]
     BadMagic { path: PathBuf },
     #[error("{}: terrain file version {found} is not supported (this build reads version {supported})", path.display())]
-    BadVersion {
-        path: PathBuf,
-        found: u32,
-        supported: u32,
-    },
+    BadVersion { path: PathBuf, found: u32, supported: u32 },
     #[error("{}: corrupt header: {problem}", path.display())]
     BadHeader { path: PathBuf, problem: String },
     #[error("{}: truncated: expected {expected} bytes, found {found}", path.display())]
-    Truncated {
-        path: PathBuf,
-        expected: u64,
-        found: u64,
-    },
+    Truncated { path: PathBuf, expected: u64, found: u64 },
     #[error("{}: {which} checksum mismatch (stored {stored:016x}, computed {computed:016x})", path.display())]
-    Checksum {
-        path: PathBuf,
-        which: &'static str,
-        stored: u64,
-        computed: u64,
-    },
+    Checksum { path: PathBuf, which: &'static str, stored: u64, computed: u64 },
     #[error("{}: grid too large: {width} x {height} needs more than 2^{max_n} + 1 posts per side", path.display())]
-    GridTooLarge {
-        path: PathBuf,
-        width: u64,
-        height: u64,
-        max_n: u32,
-    },
+    GridTooLarge { path: PathBuf, width: u64, height: u64, max_n: u32 },
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
     #[error("interrupted")]
@@ -61,18 +43,12 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 impl Error {
     /// Wraps an I/O error with the path it concerns.
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
-        Error::Io {
-            path: path.into(),
-            source,
-        }
+        Error::Io { path: path.into(), source }
     }
 
     /// A DEM that could be opened but whose content is wrong.
     pub fn bad_dem(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
-        Error::BadDem {
-            path: path.into(),
-            problem: problem.into(),
-        }
+        Error::BadDem { path: path.into(), problem: problem.into() }
     }
 }
 

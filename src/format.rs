@@ -133,8 +133,7 @@ impl Header {
 
     /// The file's layout, rebuilt from the header.
     pub fn layout(&self) -> AnyLayout {
-        AnyLayout::new(self.layout, self.grid(), self.layout_param, self.record_bytes)
-            .expect("header layout validated")
+        AnyLayout::new(self.layout, self.grid(), self.layout_param, self.record_bytes).expect("header layout validated")
     }
 
     /// Encodes the header into its 256 bytes, computing the header checksum.
@@ -205,11 +204,7 @@ impl Header {
         let n = get_u32(b, 32);
         let grid = Grid::new(n).ok_or_else(|| bad(format!("grid exponent n = {n} outside 1..={MAX_N}")))?;
         if get_u32(b, 36) != 2 * n || get_u32(b, 40) != grid.size() {
-            return Err(bad(format!(
-                "levels {} / side {} disagree with n = {n}",
-                get_u32(b, 36),
-                get_u32(b, 40)
-            )));
+            return Err(bad(format!("levels {} / side {} disagree with n = {n}", get_u32(b, 36), get_u32(b, 40))));
         }
         let h = Header {
             version,
@@ -235,10 +230,7 @@ impl Header {
             payload_checksum: get_u64(b, 240),
         };
         if h.record_format != RECORD_FORMAT_F32 || h.record_bytes != RECORD_BYTES {
-            return Err(bad(format!(
-                "unknown record format {} of {} bytes",
-                h.record_format, h.record_bytes
-            )));
+            return Err(bad(format!("unknown record format {} of {} bytes", h.record_format, h.record_bytes)));
         }
         let layout = AnyLayout::new(layout, grid, h.layout_param, h.record_bytes).map_err(bad)?;
         if h.records != layout.records() {
@@ -427,10 +419,7 @@ mod tests {
         let mut m = b;
         m[100] ^= 1;
         assert!(matches!(Header::decode(p, &m, file_len(&h)), Err(Error::Checksum { which: "header", .. })));
-        assert!(matches!(
-            Header::decode(p, &b, file_len(&h) - 1),
-            Err(Error::Truncated { .. })
-        ));
+        assert!(matches!(Header::decode(p, &b, file_len(&h) - 1), Err(Error::Truncated { .. })));
         assert!(matches!(Header::decode(p, &b[..100], 100), Err(Error::Truncated { .. })));
         // A consistent checksum over inconsistent fields is still rejected.
         let mut bad = h.clone();

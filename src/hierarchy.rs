@@ -136,11 +136,9 @@ impl Grid {
     pub fn split_edge(&self, x: u32, y: u32) -> Option<[(u32, u32); 2]> {
         match self.kind(x, y) {
             VertexKind::Corner => None,
-            VertexKind::EdgeMidpoint { step } => Some(if (x / step) & 1 == 1 {
-                [(x - step, y), (x + step, y)]
-            } else {
-                [(x, y - step), (x, y + step)]
-            }),
+            VertexKind::EdgeMidpoint { step } => {
+                Some(if (x / step) & 1 == 1 { [(x - step, y), (x + step, y)] } else { [(x, y - step), (x, y + step)] })
+            }
             VertexKind::SquareCentre { step } => {
                 // In units of 2·step the square's corners are (a..=a+1, b..=b+1); the bisected
                 // diagonal joins its both-even corner and its both-odd corner.
@@ -163,10 +161,7 @@ impl Grid {
         };
         // The apexes lie on the perpendicular bisector of the split edge, at half its length.
         let (dx, dy) = ((b.0 as i64 - a.0 as i64) / 2, (b.1 as i64 - a.1 as i64) / 2);
-        for (px, py) in [
-            (x as i64 - dy, y as i64 + dx),
-            (x as i64 + dy, y as i64 - dx),
-        ] {
+        for (px, py) in [(x as i64 - dy, y as i64 + dx), (x as i64 + dy, y as i64 - dx)] {
             if self.contains(px, py) {
                 out[count] = (px as u32, py as u32);
                 count += 1;
@@ -214,19 +209,13 @@ impl Grid {
 /// Only meaningful when `split` is above level 1 (its children exist).
 #[inline(always)]
 pub fn split_children(apex: (u32, u32), split: (u32, u32)) -> [(u32, u32); 2] {
-    let (dx, dy) = (
-        apex.0 as i64 - split.0 as i64,
-        apex.1 as i64 - split.1 as i64,
-    );
+    let (dx, dy) = (apex.0 as i64 - split.0 as i64, apex.1 as i64 - split.1 as i64);
     let (rx, ry) = (-dy, dx);
     let sign = if dx == 0 || dy == 0 { 1 } else { -1 };
     let (sx, sy) = (split.0 as i64, split.1 as i64);
     let left = (sx + (dx + sign * rx) / 2, sy + (dy + sign * ry) / 2);
     let right = (sx + (dx - sign * rx) / 2, sy + (dy - sign * ry) / 2);
-    [
-        (left.0 as u32, left.1 as u32),
-        (right.0 as u32, right.1 as u32),
-    ]
+    [(left.0 as u32, left.1 as u32), (right.0 as u32, right.1 as u32)]
 }
 
 #[cfg(test)]
@@ -287,10 +276,7 @@ mod tests {
                     assert_eq!(g.level(px, py), l + 1, "parent of {x},{y}");
                     if g.kind(px, py) != VertexKind::Corner {
                         let (cs, nc) = g.dag_children(px, py);
-                        assert!(
-                            cs[..nc].contains(&(x, y)),
-                            "{px},{py} lists {x},{y} as child"
-                        );
+                        assert!(cs[..nc].contains(&(x, y)), "{px},{py} lists {x},{y} as child");
                     }
                 }
                 let (cs, nc) = g.dag_children(x, y);

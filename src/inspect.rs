@@ -49,10 +49,8 @@ pub struct Geographic {
 
 pub fn info(file: &TerrainFile) -> Info {
     let h = file.header();
-    let geographic = (h.flags & FLAG_GEOGRAPHIC != 0).then_some(Geographic {
-        spacing_deg: h.source_spacing_deg,
-        centre_lat_deg: h.source_centre_lat_deg,
-    });
+    let geographic = (h.flags & FLAG_GEOGRAPHIC != 0)
+        .then_some(Geographic { spacing_deg: h.source_spacing_deg, centre_lat_deg: h.source_centre_lat_deg });
     Info {
         file: file.path().display().to_string(),
         version: h.version,
@@ -145,11 +143,7 @@ pub fn verify(file: &TerrainFile, progress: Progress) -> Result<VerifyReport> {
 
     let zero = Record::default();
     let dirty_unused_slots = if h.records > grid.vertices() {
-        records
-            .par_iter()
-            .enumerate()
-            .filter(|(i, r)| **r != zero && layout.coords(*i as u64).is_none())
-            .count() as u64
+        records.par_iter().enumerate().filter(|(i, r)| **r != zero && layout.coords(*i as u64).is_none()).count() as u64
     } else {
         0
     };

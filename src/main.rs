@@ -163,7 +163,19 @@ fn fmt_bytes(b: u64) -> String {
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
-        Command::Convert { input, output, layout, tile, spacing, z_scale, z_offset, format, scratch_dir, json, quiet } => {
+        Command::Convert {
+            input,
+            output,
+            layout,
+            tile,
+            spacing,
+            z_scale,
+            z_offset,
+            format,
+            scratch_dir,
+            json,
+            quiet,
+        } => {
             let mut opts = ConvertOptions::new(layout.into());
             opts.tile = tile;
             opts.spacing_m = spacing.as_deref().map(parse_spacing).transpose()?;
@@ -191,7 +203,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     r.records,
                     r.seconds,
                     r.vertices_per_s / 1e6,
-                    if r.nodata_filled > 0 { format!(", {} nodata samples filled", r.nodata_filled) } else { String::new() }
+                    if r.nodata_filled > 0 {
+                        format!(", {} nodata samples filled", r.nodata_filled)
+                    } else {
+                        String::new()
+                    }
                 );
             }
             Ok(ExitCode::SUCCESS)
@@ -204,8 +220,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 return Ok(ExitCode::SUCCESS);
             }
             println!("file          {}", i.file);
-            println!("grid          {0} x {0} posts ({1} levels), valid window {2:?}", i.grid_size, i.levels, i.valid_window);
-            println!("layout        {}{}", i.layout, if i.layout == "tiled" { format!(" (tile {})", i.layout_param) } else { String::new() });
+            println!(
+                "grid          {0} x {0} posts ({1} levels), valid window {2:?}",
+                i.grid_size, i.levels, i.valid_window
+            );
+            println!(
+                "layout        {}{}",
+                i.layout,
+                if i.layout == "tiled" { format!(" (tile {})", i.layout_param) } else { String::new() }
+            );
             println!("records       {} for {} vertices (waste {:.1}%)", i.records, i.vertices, 100.0 * i.waste_ratio);
             println!(
                 "spacing       {} x {} m{}",
@@ -223,7 +246,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             println!("heights       {:.2} .. {:.2} m (source x {} + {})", i.z_min, i.z_max, i.z_scale, i.z_offset);
             println!("nodata filled {}", i.nodata_filled);
             println!("source format {}", i.source_format);
-            println!("file          {} ({} bytes), payload xxh3 {}", fmt_bytes(i.file_bytes), i.file_bytes, i.payload_checksum);
+            println!(
+                "file          {} ({} bytes), payload xxh3 {}",
+                fmt_bytes(i.file_bytes),
+                i.file_bytes,
+                i.payload_checksum
+            );
             Ok(ExitCode::SUCCESS)
         }
         Command::Verify { file, json, quiet } => {

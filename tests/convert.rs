@@ -29,7 +29,8 @@ fn relief() -> Command {
 
 /// Files in `dir` (to prove nothing half-written or temporary is left behind).
 fn listing(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let mut v: Vec<String> =
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     v.sort();
     v
 }
@@ -41,7 +42,8 @@ fn every_real_dem_converts_to_every_layout_and_verifies() {
         let mut reference: Option<(TerrainFile, Vec<relief::format::Record>)> = None;
         for kind in LayoutKind::ALL {
             let out = dir.path().join(format!("{name}.{kind}.relief"));
-            let report = convert(&dem(name), &out, &ConvertOptions::new(kind)).unwrap_or_else(|e| panic!("{name} {kind}: {e}"));
+            let report =
+                convert(&dem(name), &out, &ConvertOptions::new(kind)).unwrap_or_else(|e| panic!("{name} {kind}: {e}"));
             let file = TerrainFile::open(&out).unwrap();
             let info = inspect::info(&file);
             // info agrees with the conversion report and the header.
@@ -55,14 +57,20 @@ fn every_real_dem_converts_to_every_layout_and_verifies() {
             assert_eq!(info.file_bytes, std::fs::metadata(&out).unwrap().len());
             assert_eq!((info.z_min, info.z_max), (report.z_min, report.z_max));
             assert!(report.grid_size >= report.source_width.max(report.source_height));
-            assert!((report.grid_size - 1) / 2 < report.source_width.max(report.source_height), "not the smallest grid");
+            assert!(
+                (report.grid_size - 1) / 2 < report.source_width.max(report.source_height),
+                "not the smallest grid"
+            );
             // verify: checksums and nesting over every vertex.
             let v = inspect::verify(&file, Progress::hidden()).unwrap();
             assert!(v.ok, "{name} {kind}: {:?}", v.problems);
             assert_eq!(v.vertices_checked, info.vertices);
             // Every layout stores the same record for the same grid post.
             let g = file.grid();
-            let recs: Vec<_> = (0..g.size()).flat_map(|y| (0..g.size()).map(move |x| (x, y))).map(|(x, y)| file.record_at(x, y)).collect();
+            let recs: Vec<_> = (0..g.size())
+                .flat_map(|y| (0..g.size()).map(move |x| (x, y)))
+                .map(|(x, y)| file.record_at(x, y))
+                .collect();
             match &reference {
                 None => reference = Some((file, recs)),
                 Some((_, r)) => assert!(r == &recs, "{name}: {kind} stores different records than row-major"),
@@ -122,12 +130,31 @@ fn spacing_and_z_scale_options_apply() {
 fn cli_convert_info_verify_round_trip() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("z.relief");
-    let st = relief().args(["convert", "--quiet", "--layout", "embedded"]).arg(dem("zurich_25m_i16.tif")).arg(&out).output().unwrap();
+    let st = relief()
+        .args(["convert", "--quiet", "--layout", "embedded"])
+        .arg(dem("zurich_25m_i16.tif"))
+        .arg(&out)
+        .output()
+        .unwrap();
     assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
     let info = relief().args(["info", "--json"]).arg(&out).output().unwrap();
     assert!(info.status.success());
     let j: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
-    for key in ["grid_size", "levels", "layout", "records", "vertices", "waste_ratio", "spacing_m", "extent_m", "z_min", "z_max", "valid_window", "nodata_filled", "file_bytes"] {
+    for key in [
+        "grid_size",
+        "levels",
+        "layout",
+        "records",
+        "vertices",
+        "waste_ratio",
+        "spacing_m",
+        "extent_m",
+        "z_min",
+        "z_max",
+        "valid_window",
+        "nodata_filled",
+        "file_bytes",
+    ] {
         assert!(j.get(key).is_some(), "info --json lacks {key}");
     }
     assert_eq!(j["layout"], "embedded");
@@ -175,8 +202,22 @@ fn bad_inputs_give_one_line_errors_and_no_output() {
     let nowhere = d.join("no/such/dir/out.relief");
     fails_with(&["convert".as_ref(), &os(&dem("hugo_site_nodata.asc")), &os(&nowhere)], "no/such/dir");
     // Bad options.
-    fails_with(&["convert".as_ref(), &os(&dem("hugo_site_nodata.asc")), &os(&out), "--spacing=-3".as_ref()], "--spacing");
-    fails_with(&["convert".as_ref(), &os(&dem("hugo_site_nodata.asc")), &os(&out), "--layout".as_ref(), "tiled".as_ref(), "--tile".as_ref(), "12".as_ref()], "power of two");
+    fails_with(
+        &["convert".as_ref(), &os(&dem("hugo_site_nodata.asc")), &os(&out), "--spacing=-3".as_ref()],
+        "--spacing",
+    );
+    fails_with(
+        &[
+            "convert".as_ref(),
+            &os(&dem("hugo_site_nodata.asc")),
+            &os(&out),
+            "--layout".as_ref(),
+            "tiled".as_ref(),
+            "--tile".as_ref(),
+            "12".as_ref(),
+        ],
+        "power of two",
+    );
     assert_eq!(listing(d), vec!["junk.bin", "trunc.tif", "void.asc"], "no output or temporary file left");
 
     // Damaged terrain files.
@@ -221,13 +262,18 @@ fn interrupted_conversion_leaves_old_file_or_new_one() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let synth = d.join("synthetic_2049.tif");
-    let st = Command::new(env!("CARGO_BIN_EXE_relief-synth")).arg(&synth).args(["--size", "2049", "--seed", "3"]).output().unwrap();
+    let st = Command::new(env!("CARGO_BIN_EXE_relief-synth"))
+        .arg(&synth)
+        .args(["--size", "2049", "--seed", "3"])
+        .output()
+        .unwrap();
     assert!(st.status.success());
     let out = d.join("t.relief");
     convert(&dem("hugo_site_nodata.asc"), &out, &ConvertOptions::new(LayoutKind::Hz)).unwrap();
     let mut old = std::fs::read(&out).unwrap();
     for delay_ms in [20u64, 80, 200] {
-        let child = relief().args(["convert", "--quiet", "--layout", "interleaved"]).arg(&synth).arg(&out).spawn().unwrap();
+        let child =
+            relief().args(["convert", "--quiet", "--layout", "interleaved"]).arg(&synth).arg(&out).spawn().unwrap();
         std::thread::sleep(std::time::Duration::from_millis(delay_ms));
         unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
         let res = child.wait_with_output().unwrap();

@@ -32,9 +32,7 @@ impl Grid {
         self.values
             .iter()
             .filter(|v| !v.is_nan())
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
-                (lo.min(v), hi.max(v))
-            })
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)))
     }
 }
 
@@ -49,17 +47,10 @@ fn read(path: &Path, format: Option<DemFormat>) -> Grid {
     source
         .read(&mut |run| {
             assert!(run.row < info.height, "row {} out of range", run.row);
-            assert!(
-                run.x0 as usize + run.values.len() <= w,
-                "run past the row end"
-            );
+            assert!(run.x0 as usize + run.values.len() <= w, "run past the row end");
             for (k, &v) in run.values.iter().enumerate() {
                 let x = run.x0 as usize + k;
-                assert!(
-                    seen.insert((run.row, x)),
-                    "sample ({x}, {}) delivered twice",
-                    run.row
-                );
+                assert!(seen.insert((run.row, x)), "sample ({x}, {}) delivered twice", run.row);
                 values[run.row as usize * w + x] = v;
             }
             count += run.values.len();
@@ -79,20 +70,14 @@ fn read_error(path: &Path, format: Option<DemFormat>) -> String {
             let message = e.to_string();
             assert!(!message.contains('\n'), "multi-line message: {message}");
             let name = path.file_name().unwrap().to_str().unwrap();
-            assert!(
-                message.contains(name),
-                "message does not name the file: {message}"
-            );
+            assert!(message.contains(name), "message does not name the file: {message}");
             message
         }
     }
 }
 
 fn assert_close(a: f64, b: f64, tolerance: f64, what: &str) {
-    assert!(
-        (a - b).abs() <= tolerance,
-        "{what}: {a} is not within {tolerance} of {b}"
-    );
+    assert!((a - b).abs() <= tolerance, "{what}: {a} is not within {tolerance} of {b}");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -104,18 +89,11 @@ fn zurich_geotiff_int16() {
     assert_eq!(g.info.format, DemFormat::GeoTiff);
     assert_eq!((g.info.width, g.info.height), (399, 366));
     assert_eq!(g.info.nodata, Some(-9999.0));
-    assert_eq!(
-        g.info.spacing,
-        Some(SourceSpacing::Metres { x: 25.0, y: 25.0 })
-    );
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Metres { x: 25.0, y: 25.0 }));
     let (lo, hi) = g.range();
     assert_close(lo, 393.0, 0.5, "min");
     assert_close(hi, 870.0, 0.5, "max");
-    eprintln!(
-        "zurich: {} nodata samples, type {}",
-        g.nan_count(),
-        g.info.sample_type
-    );
+    eprintln!("zurich: {} nodata samples, type {}", g.nan_count(), g.info.sample_type);
 }
 
 #[test]
@@ -123,19 +101,11 @@ fn lidar_geotiff_float32() {
     let g = read(&data("lidar_1m_f32.tif"), None);
     assert_eq!(g.info.format, DemFormat::GeoTiff);
     assert_eq!((g.info.width, g.info.height), (400, 400));
-    assert_eq!(
-        g.info.spacing,
-        Some(SourceSpacing::Metres { x: 1.0, y: 1.0 })
-    );
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Metres { x: 1.0, y: 1.0 }));
     let (lo, hi) = g.range();
     assert_close(lo, 379.7, 0.5, "min");
     assert_close(hi, 410.8, 0.5, "max");
-    eprintln!(
-        "lidar: {} nodata samples, nodata {:?}, type {}",
-        g.nan_count(),
-        g.info.nodata,
-        g.info.sample_type
-    );
+    eprintln!("lidar: {} nodata samples, nodata {:?}, type {}", g.nan_count(), g.info.nodata, g.info.sample_type);
 }
 
 #[test]
@@ -144,11 +114,7 @@ fn etopo_geotiff_degrees() {
     assert_eq!(g.info.format, DemFormat::GeoTiff);
     assert_eq!((g.info.width, g.info.height), (1081, 540));
     match g.info.spacing {
-        Some(SourceSpacing::Degrees {
-            x,
-            y,
-            centre_lat_deg,
-        }) => {
+        Some(SourceSpacing::Degrees { x, y, centre_lat_deg }) => {
             assert_close(x, 1.0 / 3.0, 1e-6, "x spacing");
             assert_close(y, 1.0 / 3.0, 1e-6, "y spacing");
             assert_close(centre_lat_deg, 0.0, 0.5, "centre latitude");
@@ -158,11 +124,7 @@ fn etopo_geotiff_degrees() {
     let (lo, hi) = g.range();
     assert_close(lo, -9026.6, 0.5, "min");
     assert_close(hi, 6228.8, 0.5, "max");
-    eprintln!(
-        "etopo: {} nodata samples, type {}",
-        g.nan_count(),
-        g.info.sample_type
-    );
+    eprintln!("etopo: {} nodata samples, type {}", g.nan_count(), g.info.sample_type);
 }
 
 #[test]
@@ -173,11 +135,7 @@ fn fuji_terrain_rgb() {
     let (lo, hi) = g.range();
     assert_close(lo, 13.7, 0.5, "min");
     assert_close(hi, 3751.0, 0.5, "max");
-    eprintln!(
-        "fuji: {} nodata samples, type {}",
-        g.nan_count(),
-        g.info.sample_type
-    );
+    eprintln!("fuji: {} nodata samples, type {}", g.nan_count(), g.info.sample_type);
 }
 
 #[test]
@@ -188,11 +146,7 @@ fn terrarium_png() {
     let (lo, hi) = g.range();
     assert_close(lo, 715.0, 0.5, "min");
     assert_close(hi, 2489.0, 0.5, "max");
-    eprintln!(
-        "terrarium: {} nodata samples, type {}",
-        g.nan_count(),
-        g.info.sample_type
-    );
+    eprintln!("terrarium: {} nodata samples, type {}", g.nan_count(), g.info.sample_type);
 }
 
 #[test]
@@ -204,11 +158,7 @@ fn hugo_asc_with_nodata() {
     let (lo, hi) = g.range();
     assert_close(lo, 1660.0, 0.5, "min");
     assert_close(hi, 1711.0, 0.5, "max");
-    eprintln!(
-        "hugo: {} nodata samples, spacing {:?}",
-        g.nan_count(),
-        g.info.spacing
-    );
+    eprintln!("hugo: {} nodata samples, spacing {:?}", g.nan_count(), g.info.spacing);
 }
 
 #[test]
@@ -247,20 +197,12 @@ mod tiff_fixtures {
         [C::Inner]: tiff::encoder::TiffValue,
     {
         let file = std::fs::File::create(path).unwrap();
-        let mut encoder = TiffEncoder::new(file)
-            .unwrap()
-            .with_compression(compression);
+        let mut encoder = TiffEncoder::new(file).unwrap().with_compression(compression);
         let mut image = encoder.new_image::<C>(W, H).unwrap();
         image.rows_per_strip(2).unwrap();
-        image
-            .encoder()
-            .write_tag(Tag::ModelPixelScaleTag, &[25.0f64, 25.0, 0.0][..])
-            .unwrap();
+        image.encoder().write_tag(Tag::ModelPixelScaleTag, &[25.0f64, 25.0, 0.0][..]).unwrap();
         image.encoder().write_tag(Tag::GdalNodata, nodata).unwrap();
-        let data: Vec<C::Inner> = (0..H)
-            .flat_map(|y| (0..W).map(move |x| value(x, y)))
-            .map(&convert)
-            .collect();
+        let data: Vec<C::Inner> = (0..H).flat_map(|y| (0..W).map(move |x| value(x, y))).map(&convert).collect();
         image.write_data(&data).unwrap();
     }
 
@@ -277,16 +219,10 @@ mod tiff_fixtures {
 fn check_tiff_fixture(path: &Path, sample_type: &str) {
     let g = read(path, None);
     assert_eq!(g.info.format, DemFormat::GeoTiff);
-    assert_eq!(
-        (g.info.width, g.info.height),
-        (tiff_fixtures::W, tiff_fixtures::H)
-    );
+    assert_eq!((g.info.width, g.info.height), (tiff_fixtures::W, tiff_fixtures::H));
     assert_eq!(g.info.sample_type, sample_type);
     assert_eq!(g.info.nodata, Some(3.0));
-    assert_eq!(
-        g.info.spacing,
-        Some(SourceSpacing::Metres { x: 25.0, y: 25.0 })
-    );
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Metres { x: 25.0, y: 25.0 }));
     for y in 0..tiff_fixtures::H {
         for x in 0..tiff_fixtures::W {
             let v = g.at(x, y);
@@ -334,21 +270,11 @@ fn tiff_float_nodata_and_non_finite() {
     use tiff::tags::Tag;
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("f32_nodata.tif");
-    let data = [
-        1.5f32,
-        f32::MIN,
-        f32::NAN,
-        f32::INFINITY,
-        -2.25,
-        f32::NEG_INFINITY,
-    ];
+    let data = [1.5f32, f32::MIN, f32::NAN, f32::INFINITY, -2.25, f32::NEG_INFINITY];
     let mut encoder = TiffEncoder::new(std::fs::File::create(&path).unwrap()).unwrap();
     let mut image = encoder.new_image::<Gray32Float>(3, 2).unwrap();
     // GDAL writes f32::MIN as this f64 text; it must match after casting to f32.
-    image
-        .encoder()
-        .write_tag(Tag::GdalNodata, "-3.4028234663852886e+38")
-        .unwrap();
+    image.encoder().write_tag(Tag::GdalNodata, "-3.4028234663852886e+38").unwrap();
     image.write_data(&data).unwrap();
     let g = read(&path, None);
     assert_eq!(g.info.spacing, None);
@@ -361,10 +287,7 @@ fn tiff_float_nodata_and_non_finite() {
     let path = dir.path().join("f32_short_nodata.tif");
     let mut encoder = TiffEncoder::new(std::fs::File::create(&path).unwrap()).unwrap();
     let mut image = encoder.new_image::<Gray32Float>(3, 2).unwrap();
-    image
-        .encoder()
-        .write_tag(Tag::GdalNodata, "-3.40282e+38")
-        .unwrap();
+    image.encoder().write_tag(Tag::GdalNodata, "-3.40282e+38").unwrap();
     image.write_data(&data).unwrap();
     let g = read(&path, None);
     assert_eq!(g.values[0], 1.5);
@@ -380,17 +303,11 @@ fn tiff_multi_sample_takes_first() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("rgb16.tif");
     let (w, h) = (4u32, 3u32);
-    let data: Vec<u16> = (0..h)
-        .flat_map(|y| (0..w).flat_map(move |x| [value(x, y) as u16, 60000, 60001]))
-        .collect();
+    let data: Vec<u16> = (0..h).flat_map(|y| (0..w).flat_map(move |x| [value(x, y) as u16, 60000, 60001])).collect();
     let mut encoder = TiffEncoder::new(std::fs::File::create(&path).unwrap()).unwrap();
     encoder.write_image::<RGB16>(w, h, &data).unwrap();
     let g = read(&path, None);
-    assert!(
-        g.info.sample_type.contains("first of 3"),
-        "{}",
-        g.info.sample_type
-    );
+    assert!(g.info.sample_type.contains("first of 3"), "{}", g.info.sample_type);
     for y in 0..h {
         for x in 0..w {
             assert_eq!(g.at(x, y), value(x, y) as f64);
@@ -402,14 +319,7 @@ fn tiff_multi_sample_takes_first() {
 /// only). Tiles are `tile` x `tile`, padded at the right and bottom edges; `samples` per pixel,
 /// interleaved (`planar` false) or in separate planes. Sample s of pixel (x, y) is
 /// `value(x, y) + 1000 s`. Optional geo tags: pixel scale, tie point and a GeoKeyDirectory.
-fn tiled_tiff(
-    width: u32,
-    height: u32,
-    tile: u32,
-    samples: u16,
-    planar: bool,
-    geo: bool,
-) -> Vec<u8> {
+fn tiled_tiff(width: u32, height: u32, tile: u32, samples: u16, planar: bool, geo: bool) -> Vec<u8> {
     let across = width.div_ceil(tile);
     let down = height.div_ceil(tile);
     let planes = if planar { u32::from(samples) } else { 1 };
@@ -494,26 +404,8 @@ fn tiled_tiff(
         (284, 3, 1, if planar { 2 } else { 1 }),
         (322, 4, 1, tile),
         (323, 4, 1, tile),
-        (
-            324,
-            4,
-            tile_count,
-            if tile_count == 1 {
-                offsets[0]
-            } else {
-                offsets_at
-            },
-        ),
-        (
-            325,
-            4,
-            tile_count,
-            if tile_count == 1 {
-                tile_bytes
-            } else {
-                counts_at
-            },
-        ),
+        (324, 4, tile_count, if tile_count == 1 { offsets[0] } else { offsets_at }),
+        (325, 4, tile_count, if tile_count == 1 { tile_bytes } else { counts_at }),
     ];
     if samples > 1 {
         entries.push((338, 3, 1, 0)); // ExtraSamples: unspecified
@@ -559,12 +451,7 @@ fn tiff_tiled_with_partial_edge_tiles() {
     // 5 x 3 in 4 x 4 tiles: the right tile has 1 valid column, both have 3 valid rows.
     let g = check_tiled(&tiled_tiff(5, 3, 4, 1, false, false), 5, 3, "tiled.tif");
     assert_eq!(g.info.spacing, None);
-    check_tiled(
-        &tiled_tiff(9, 10, 4, 1, false, false),
-        9,
-        10,
-        "tiled_3x3.tif",
-    );
+    check_tiled(&tiled_tiff(9, 10, 4, 1, false, false), 9, 10, "tiled_3x3.tif");
     check_tiled(&tiled_tiff(3, 2, 16, 1, false, false), 3, 2, "one_tile.tif");
 }
 
@@ -580,26 +467,12 @@ fn tiff_geographic_spacing() {
     // Pixel scale 0.5° x 0.25°, tie point (0, 0) -> (8°E, 47°N), 8 rows: the centre is at
     // 47 - 0.25 * 4 = 46°N.
     let g = check_tiled(&tiled_tiff(5, 8, 4, 1, false, true), 5, 8, "geo.tif");
-    assert_eq!(
-        g.info.spacing,
-        Some(SourceSpacing::Degrees {
-            x: 0.5,
-            y: 0.25,
-            centre_lat_deg: 46.0
-        })
-    );
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Degrees { x: 0.5, y: 0.25, centre_lat_deg: 46.0 }));
 }
 
 // PNG -----------------------------------------------------------------------------------------
 
-fn write_png(
-    path: &Path,
-    w: u32,
-    h: u32,
-    colour: png::ColorType,
-    depth: png::BitDepth,
-    data: &[u8],
-) {
+fn write_png(path: &Path, w: u32, h: u32, colour: png::ColorType, depth: png::BitDepth, data: &[u8]) {
     let file = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     let mut encoder = png::Encoder::new(file, w, h);
     encoder.set_color(colour);
@@ -615,17 +488,8 @@ fn png_gray8_gray16_and_alpha() {
     let (w, h) = (5u32, 4u32);
 
     let p8 = dir.path().join("gray8.png");
-    let data: Vec<u8> = (0..h)
-        .flat_map(|y| (0..w).map(move |x| value(x, y) as u8))
-        .collect();
-    write_png(
-        &p8,
-        w,
-        h,
-        png::ColorType::Grayscale,
-        png::BitDepth::Eight,
-        &data,
-    );
+    let data: Vec<u8> = (0..h).flat_map(|y| (0..w).map(move |x| value(x, y) as u8)).collect();
+    write_png(&p8, w, h, png::ColorType::Grayscale, png::BitDepth::Eight, &data);
     let g = read(&p8, None);
     assert_eq!(g.info.format, DemFormat::Png);
     assert_eq!(g.info.sample_type, "uint8 gray");
@@ -633,17 +497,9 @@ fn png_gray8_gray16_and_alpha() {
     assert_eq!(g.nan_count(), 0);
 
     let p16 = dir.path().join("gray16.png");
-    let data: Vec<u8> = (0..h)
-        .flat_map(|y| (0..w).flat_map(move |x| (value(x, y) as u16 * 1000).to_be_bytes()))
-        .collect();
-    write_png(
-        &p16,
-        w,
-        h,
-        png::ColorType::Grayscale,
-        png::BitDepth::Sixteen,
-        &data,
-    );
+    let data: Vec<u8> =
+        (0..h).flat_map(|y| (0..w).flat_map(move |x| (value(x, y) as u16 * 1000).to_be_bytes())).collect();
+    write_png(&p16, w, h, png::ColorType::Grayscale, png::BitDepth::Sixteen, &data);
     let g = read(&p16, None);
     assert_eq!(g.info.sample_type, "uint16 gray");
     for y in 0..h {
@@ -654,18 +510,9 @@ fn png_gray8_gray16_and_alpha() {
 
     let pa = dir.path().join("gray_alpha.png");
     let data: Vec<u8> = (0..h)
-        .flat_map(|y| {
-            (0..w).flat_map(move |x| [value(x, y) as u8, if (x, y) == (2, 1) { 0 } else { 255 }])
-        })
+        .flat_map(|y| (0..w).flat_map(move |x| [value(x, y) as u8, if (x, y) == (2, 1) { 0 } else { 255 }]))
         .collect();
-    write_png(
-        &pa,
-        w,
-        h,
-        png::ColorType::GrayscaleAlpha,
-        png::BitDepth::Eight,
-        &data,
-    );
+    write_png(&pa, w, h, png::ColorType::GrayscaleAlpha, png::BitDepth::Eight, &data);
     let g = read(&pa, None);
     assert!(g.at(2, 1).is_nan());
     assert_eq!(g.nan_count(), 1);
@@ -679,11 +526,7 @@ fn terrain_rgb_pixel(h: f64) -> [u8; 3] {
 
 fn terrarium_pixel(h: f64) -> [u8; 3] {
     let v = h + 32768.0;
-    [
-        (v / 256.0).floor() as u8,
-        (v.floor() as u32 % 256) as u8,
-        (v.fract() * 256.0) as u8,
-    ]
+    [(v / 256.0).floor() as u8, (v.floor() as u32 % 256) as u8, (v.fract() * 256.0) as u8]
 }
 
 /// Heights exactly representable in both encodings (multiples of 0.5 m... and of 1/256).
@@ -698,11 +541,7 @@ fn write_encoded(path: &Path, encode: fn(f64) -> [u8; 3], alpha: bool) {
             data.push(if k == 5 { 0 } else { 255 });
         }
     }
-    let colour = if alpha {
-        png::ColorType::Rgba
-    } else {
-        png::ColorType::Rgb
-    };
+    let colour = if alpha { png::ColorType::Rgba } else { png::ColorType::Rgb };
     write_png(path, 3, 2, colour, png::BitDepth::Eight, &data);
 }
 
@@ -742,14 +581,7 @@ fn png_terrain_rgb_and_terrarium_by_name_and_content() {
 fn png_detection_and_forced_mismatches() {
     let dir = tempfile::tempdir().unwrap();
     let gray = dir.path().join("gray.png");
-    write_png(
-        &gray,
-        2,
-        2,
-        png::ColorType::Grayscale,
-        png::BitDepth::Eight,
-        &[1, 2, 3, 4],
-    );
+    write_png(&gray, 2, 2, png::ColorType::Grayscale, png::BitDepth::Eight, &[1, 2, 3, 4]);
     let m = read_error(&gray, Some(DemFormat::TerrainRgb));
     assert!(m.contains("grayscale"), "{m}");
     let rgb = dir.path().join("rgb.png");
@@ -774,14 +606,7 @@ fn png_corrupted_idat() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("corrupt.png");
     let data: Vec<u8> = (0..64 * 64).map(|i| (i % 251) as u8).collect();
-    write_png(
-        &path,
-        64,
-        64,
-        png::ColorType::Grayscale,
-        png::BitDepth::Eight,
-        &data,
-    );
+    write_png(&path, 64, 64, png::ColorType::Grayscale, png::BitDepth::Eight, &data);
     let mut bytes = std::fs::read(&path).unwrap();
     let idat = bytes.windows(4).position(|w| w == b"IDAT").unwrap();
     for b in &mut bytes[idat + 10..idat + 20] {
@@ -802,12 +627,7 @@ fn write_exr(
     encoding: exr::prelude::Encoding,
 ) {
     use exr::prelude::*;
-    let layer = Layer::new(
-        (w, h),
-        LayerAttributes::named("height"),
-        encoding,
-        AnyChannels::sort(channels.into()),
-    );
+    let layer = Layer::new((w, h), LayerAttributes::named("height"), encoding, AnyChannels::sort(channels.into()));
     Image::from_layer(layer).write().to_file(path).unwrap();
 }
 
@@ -816,9 +636,7 @@ fn exr_f32_f16_u32_scanlines_and_tiles() {
     use exr::prelude::*;
     let dir = tempfile::tempdir().unwrap();
     let (w, h) = (7usize, 37usize);
-    let heights: Vec<f32> = (0..h)
-        .flat_map(|y| (0..w).map(move |x| value(x as u32, y as u32) as f32 * 0.5))
-        .collect();
+    let heights: Vec<f32> = (0..h).flat_map(|y| (0..w).map(move |x| value(x as u32, y as u32) as f32 * 0.5)).collect();
     let mut with_nan = heights.clone();
     with_nan[3] = f32::NAN;
     with_nan[4] = f32::INFINITY;
@@ -835,27 +653,16 @@ fn exr_f32_f16_u32_scanlines_and_tiles() {
             Encoding::SMALL_LOSSLESS,
             "float32 channel Z",
         ),
-        (
-            "f32_tiles.exr",
-            vec![AnyChannel::new("Z", FlatSamples::F32(with_nan.clone()))],
-            tiles,
-            "float32 channel Z",
-        ),
+        ("f32_tiles.exr", vec![AnyChannel::new("Z", FlatSamples::F32(with_nan.clone()))], tiles, "float32 channel Z"),
         (
             "f16.exr",
-            vec![AnyChannel::new(
-                "Y",
-                FlatSamples::F16(with_nan.iter().map(|&v| f16::from_f32(v)).collect()),
-            )],
+            vec![AnyChannel::new("Y", FlatSamples::F16(with_nan.iter().map(|&v| f16::from_f32(v)).collect()))],
             Encoding::UNCOMPRESSED,
             "float16 channel Y",
         ),
         (
             "u32.exr",
-            vec![AnyChannel::new(
-                "depth",
-                FlatSamples::U32(heights.iter().map(|&v| (v * 2.0) as u32).collect()),
-            )],
+            vec![AnyChannel::new("depth", FlatSamples::U32(heights.iter().map(|&v| (v * 2.0) as u32).collect()))],
             Encoding::FAST_LOSSLESS,
             "uint32 channel depth",
         ),
@@ -876,18 +683,10 @@ fn exr_f32_f16_u32_scanlines_and_tiles() {
         write_exr(&path, w, h, channels, encoding);
         let g = crate::read(&path, None);
         assert_eq!(g.info.format, DemFormat::Exr, "{name}");
-        assert_eq!(
-            (g.info.width, g.info.height),
-            (w as u32, h as u32),
-            "{name}"
-        );
+        assert_eq!((g.info.width, g.info.height), (w as u32, h as u32), "{name}");
         assert_eq!(g.info.sample_type, sample_type, "{name}");
         for (k, &v) in heights.iter().enumerate() {
-            let want = if name == "u32.exr" {
-                f64::from(v * 2.0)
-            } else {
-                f64::from(v)
-            };
+            let want = if name == "u32.exr" { f64::from(v * 2.0) } else { f64::from(v) };
             if name != "u32.exr" && (k == 3 || k == 4) {
                 assert!(g.values[k].is_nan(), "{name} sample {k}");
             } else {
@@ -903,11 +702,7 @@ fn hgt_bytes(side: u32, voids: &[(u32, u32)]) -> Vec<u8> {
     let mut out = Vec::with_capacity((2 * side * side) as usize);
     for y in 0..side {
         for x in 0..side {
-            let v = if voids.contains(&(x, y)) {
-                -32768
-            } else {
-                (x as i32 - y as i32) as i16
-            };
+            let v = if voids.contains(&(x, y)) { -32768 } else { (x as i32 - y as i32) as i16 };
             out.extend_from_slice(&v.to_be_bytes());
         }
     }
@@ -922,14 +717,7 @@ fn hgt_tiles() {
     let g = read(&path, None);
     assert_eq!(g.info.format, DemFormat::Hgt);
     assert_eq!((g.info.width, g.info.height), (1201, 1201));
-    assert_eq!(
-        g.info.spacing,
-        Some(SourceSpacing::Degrees {
-            x: 1.0 / 1200.0,
-            y: 1.0 / 1200.0,
-            centre_lat_deg: 47.5
-        })
-    );
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Degrees { x: 1.0 / 1200.0, y: 1.0 / 1200.0, centre_lat_deg: 47.5 }));
     assert_eq!(g.nan_count(), 2);
     assert!(g.at(600, 700).is_nan());
     assert_eq!(g.at(1200, 3), 1197.0);
@@ -939,18 +727,8 @@ fn hgt_tiles() {
     let small = dir.path().join("s12w077.HGT");
     std::fs::write(&small, hgt_bytes(3, &[])).unwrap();
     let g = read(&small, None);
-    assert_eq!(
-        g.info.spacing,
-        Some(SourceSpacing::Degrees {
-            x: 0.5,
-            y: 0.5,
-            centre_lat_deg: -11.5
-        })
-    );
-    assert_eq!(
-        g.values,
-        vec![0.0, 1.0, 2.0, -1.0, 0.0, 1.0, -2.0, -1.0, 0.0]
-    );
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Degrees { x: 0.5, y: 0.5, centre_lat_deg: -11.5 }));
+    assert_eq!(g.values, vec![0.0, 1.0, 2.0, -1.0, 0.0, 1.0, -2.0, -1.0, 0.0]);
 
     // Unparseable name: no spacing. Detection by size alone (2·1201² bytes, no extension).
     let plain = dir.path().join("tile.bin");
@@ -979,39 +757,18 @@ fn asc_wrapped_rows_nodata_and_header_variants() {
     assert_eq!(g.info.format, DemFormat::Asc);
     assert_eq!((g.info.width, g.info.height), (4, 3));
     assert_eq!(g.info.nodata, Some(-1.0));
-    assert_eq!(
-        g.info.spacing,
-        Some(SourceSpacing::Metres { x: 2.5, y: 2.5 })
-    );
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Metres { x: 2.5, y: 2.5 }));
     assert!(g.values[5].is_nan());
     let rest: Vec<f64> = g.values.iter().copied().filter(|v| !v.is_nan()).collect();
-    assert_eq!(
-        rest,
-        vec![1.0, 2.0, 3.0, 4.0, 5.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0]
-    );
+    assert_eq!(rest, vec![1.0, 2.0, 3.0, 4.0, 5.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0]);
 
     // A geographic .prj turns the spacing into degrees; dx/dy instead of cellsize.
     let geo = dir.path().join("geo.asc");
-    std::fs::write(
-        &geo,
-        "ncols 2\nnrows 2\nxllcorner 8\nyllcorner 46\ndx 0.5\ndy 0.25\n1 2\n3 4\n",
-    )
-    .unwrap();
-    std::fs::write(
-        dir.path().join("geo.prj"),
-        "GEOGCS[\"WGS 84\",DATUM[\"WGS_1984\"]]",
-    )
-    .unwrap();
+    std::fs::write(&geo, "ncols 2\nnrows 2\nxllcorner 8\nyllcorner 46\ndx 0.5\ndy 0.25\n1 2\n3 4\n").unwrap();
+    std::fs::write(dir.path().join("geo.prj"), "GEOGCS[\"WGS 84\",DATUM[\"WGS_1984\"]]").unwrap();
     let g = read(&geo, None);
     assert_eq!(g.info.nodata, None);
-    assert_eq!(
-        g.info.spacing,
-        Some(SourceSpacing::Degrees {
-            x: 0.5,
-            y: 0.25,
-            centre_lat_deg: 46.25
-        })
-    );
+    assert_eq!(g.info.spacing, Some(SourceSpacing::Degrees { x: 0.5, y: 0.25, centre_lat_deg: 46.25 }));
     assert_eq!(g.values, vec![1.0, 2.0, 3.0, 4.0]);
 }
 
@@ -1024,10 +781,7 @@ fn asc_errors_say_what_and_where() {
         read_error(&path, Some(DemFormat::Asc))
     };
     let header = "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n";
-    let m = case(
-        "no_cellsize.asc",
-        "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\n1 2 3\n4 5 6\n",
-    );
+    let m = case("no_cellsize.asc", "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\n1 2 3\n4 5 6\n");
     assert!(m.contains("'cellsize' missing"), "{m}");
     let m = case("not_number.asc", &format!("{header}1 2 3\n4 abc 6\n"));
     assert!(m.contains("line 7: 'abc' is not a number"), "{m}");
@@ -1036,14 +790,8 @@ fn asc_errors_say_what_and_where() {
     let m = case("too_many.asc", &format!("{header}1 2 3\n4 5 6 7\n"));
     assert!(m.contains("more than the 6 values"), "{m}");
     let m = case("bad_ncols.asc", "ncols -3\nnrows 2\n");
-    assert!(
-        m.contains("line 1: ncols '-3' is not a positive integer"),
-        "{m}"
-    );
-    let m = case(
-        "huge.asc",
-        "ncols 4000000000\nnrows 4000000000\nxllcorner 0\nyllcorner 0\ncellsize 1\n1\n",
-    );
+    assert!(m.contains("line 1: ncols '-3' is not a positive integer"), "{m}");
+    let m = case("huge.asc", "ncols 4000000000\nnrows 4000000000\nxllcorner 0\nyllcorner 0\ncellsize 1\n1\n");
     assert!(m.contains("absurd dimensions"), "{m}");
 }
 
@@ -1055,10 +803,7 @@ fn unknown_empty_and_missing_files() {
     let empty = dir.path().join("empty.tif");
     std::fs::write(&empty, b"").unwrap();
     let m = read_error(&empty, None);
-    assert!(
-        m.contains("unknown DEM format") && m.contains("empty file"),
-        "{m}"
-    );
+    assert!(m.contains("unknown DEM format") && m.contains("empty file"), "{m}");
 
     let random = dir.path().join("noise.xyz");
     std::fs::write(&random, [0u8, 1, 2, 3, 4, 5, 6, 7, 8]).unwrap();
@@ -1122,25 +867,11 @@ fn mutated_fixtures_never_panic() {
     let d = |n: &str| dir.path().join(n);
 
     // The fixtures.
-    tiff_fixtures::write::<GrayI16>(
-        &d("strips.tif"),
-        Compression::Deflate(DeflateLevel::Fast),
-        "3",
-        |v| v as i16,
-    );
+    tiff_fixtures::write::<GrayI16>(&d("strips.tif"), Compression::Deflate(DeflateLevel::Fast), "3", |v| v as i16);
     tiff_fixtures::write::<GrayI16>(&d("lzw.tif"), Compression::Lzw, "3", |v| v as i16);
     std::fs::write(d("tiled.tif"), tiled_tiff(5, 3, 4, 2, true, true)).unwrap();
-    let gray16: Vec<u8> = (0..6 * 5u16)
-        .flat_map(|v| (v * 300).to_be_bytes())
-        .collect();
-    write_png(
-        &d("gray16.png"),
-        6,
-        5,
-        png::ColorType::Grayscale,
-        png::BitDepth::Sixteen,
-        &gray16,
-    );
+    let gray16: Vec<u8> = (0..6 * 5u16).flat_map(|v| (v * 300).to_be_bytes()).collect();
+    write_png(&d("gray16.png"), 6, 5, png::ColorType::Grayscale, png::BitDepth::Sixteen, &gray16);
     write_encoded(&d("rgba.png"), terrain_rgb_pixel, true);
     {
         use exr::prelude::*;
@@ -1150,20 +881,8 @@ fn mutated_fixtures_never_panic() {
             line_order: LineOrder::Unspecified,
         };
         let samples: Vec<f32> = (0..7 * 6).map(|v| v as f32).collect();
-        write_exr(
-            &d("tiles.exr"),
-            7,
-            6,
-            vec![AnyChannel::new("Z", FlatSamples::F32(samples.clone()))],
-            tiles,
-        );
-        write_exr(
-            &d("lines.exr"),
-            7,
-            6,
-            vec![AnyChannel::new("Y", FlatSamples::F32(samples))],
-            Encoding::UNCOMPRESSED,
-        );
+        write_exr(&d("tiles.exr"), 7, 6, vec![AnyChannel::new("Z", FlatSamples::F32(samples.clone()))], tiles);
+        write_exr(&d("lines.exr"), 7, 6, vec![AnyChannel::new("Y", FlatSamples::F32(samples))], Encoding::UNCOMPRESSED);
     }
     std::fs::write(
         d("grid.asc"),
@@ -1214,12 +933,7 @@ fn mutated_fixtures_never_panic() {
         }
         for (what, bytes) in mutants {
             std::fs::write(&target, &bytes).unwrap();
-            for format in [
-                None,
-                Some(DemFormat::GeoTiff),
-                Some(DemFormat::Png),
-                Some(DemFormat::Exr),
-            ] {
+            for format in [None, Some(DemFormat::GeoTiff), Some(DemFormat::Png), Some(DemFormat::Exr)] {
                 runs += 1;
                 let outcome = catch_unwind(AssertUnwindSafe(|| {
                     dem::open(&target, format).and_then(|mut s| {
@@ -1245,10 +959,5 @@ fn mutated_fixtures_never_panic() {
         }
     }
     eprintln!("{runs} runs, {errors} errors");
-    assert!(
-        failures.is_empty(),
-        "{} failures:\n{}",
-        failures.len(),
-        failures.join("\n")
-    );
+    assert!(failures.is_empty(), "{} failures:\n{}", failures.len(), failures.join("\n"));
 }

@@ -10,11 +10,7 @@ const TILE_SIDES: [u32; 5] = [1, 2, 4, 16, 64];
 /// Every layout (tiled with several tile sides) for grid `g`.
 fn all_layouts(g: Grid) -> Vec<AnyLayout> {
     let mut v = vec![AnyLayout::RowMajor(RowMajor::new(g))];
-    v.extend(
-        TILE_SIDES
-            .iter()
-            .map(|&t| AnyLayout::Tiled(Tiled::new(g, t))),
-    );
+    v.extend(TILE_SIDES.iter().map(|&t| AnyLayout::Tiled(Tiled::new(g, t))));
     v.push(AnyLayout::Interleaved(Interleaved::new(g)));
     v.push(AnyLayout::Embedded(Embedded::new(g)));
     v.push(AnyLayout::Hz(Hz::new(g)));
@@ -51,18 +47,9 @@ fn index_is_a_bijection_onto_used_slots() {
             for (x, y) in positions(g) {
                 let i = l.index(x, y);
                 assert!(i < records, "{}: ({x},{y}) -> {i} >= {records}", name(&l));
-                assert!(
-                    !used[i as usize],
-                    "{}: collision at {i} for ({x},{y})",
-                    name(&l)
-                );
+                assert!(!used[i as usize], "{}: collision at {i} for ({x},{y})", name(&l));
                 used[i as usize] = true;
-                assert_eq!(
-                    l.coords(i),
-                    Some((x, y)),
-                    "{}: coords(index({x},{y}))",
-                    name(&l)
-                );
+                assert_eq!(l.coords(i), Some((x, y)), "{}: coords(index({x},{y}))", name(&l));
             }
             let mut unused = 0;
             for (i, &u) in used.iter().enumerate() {
@@ -99,10 +86,7 @@ fn waste_ratio_matches_closed_forms() {
     assert!((Embedded::new(g).waste_ratio() - 1.0 / 3.0).abs() < 1e-5);
     // The largest grids still fit the index space in u64.
     let g = Grid::new(31).unwrap();
-    assert_eq!(
-        Interleaved::new(g).records(),
-        4 + 5 * (((1u64 << 62) - 1) / 3)
-    );
+    assert_eq!(Interleaved::new(g).records(), 4 + 5 * (((1u64 << 62) - 1) / 3));
     assert_eq!(Embedded::new(g).records(), 5 + 4 * (((1u64 << 62) - 1) / 3));
     assert_eq!(Hz::new(g).records(), g.vertices());
 }
@@ -174,12 +158,7 @@ fn soar_worked_example() {
         assert_eq!(l.split_children(v(4), v(6)).map(|c| c.index), [9, 10]);
         assert_eq!(l.split_children(v(6), v(9)).map(|c| c.index), [20, 17]);
         // And the formula itself, independently of the implementation.
-        let soar = |i: u64, j: u64| {
-            [
-                4 * i - 7 + ((2 * i + j + 2) & 3),
-                4 * i - 7 + ((2 * i + j + 3) & 3),
-            ]
-        };
+        let soar = |i: u64, j: u64| [4 * i - 7 + ((2 * i + j + 2) & 3), 4 * i - 7 + ((2 * i + j + 3) & 3)];
         assert_eq!(soar(4, 6), [9, 10]);
         assert_eq!(soar(6, 9), [20, 17]);
     }
@@ -211,19 +190,13 @@ fn hierarchical_layouts_are_coarse_to_fine() {
     for n in 1..=8 {
         let g = Grid::new(n).unwrap();
         // Interleaved: strictly by level.
-        assert!(
-            check_coarse_to_fine(&Interleaved::new(g), 0),
-            "interleaved n={n}"
-        );
+        assert!(check_coarse_to_fine(&Interleaved::new(g), 0), "interleaved n={n}");
         // Embedded and hz: levels 2s + 1 and 2s + 2 (one resolution) may mix, nothing else.
         assert!(check_coarse_to_fine(&Embedded::new(g), 1), "embedded n={n}");
         assert!(check_coarse_to_fine(&Hz::new(g), 1), "hz n={n}");
         if n >= 2 {
             // ...and they really do mix, so the weaker statement is the exact one.
-            assert!(
-                !check_coarse_to_fine(&Embedded::new(g), 0),
-                "embedded n={n}"
-            );
+            assert!(!check_coarse_to_fine(&Embedded::new(g), 0), "embedded n={n}");
             assert!(!check_coarse_to_fine(&Hz::new(g), 0), "hz n={n}");
         }
         // Non-hierarchical layouts are not coarse to fine.

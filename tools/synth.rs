@@ -100,7 +100,10 @@ fn write_tiff<W: Write + Seek, K: TiffKind>(mut enc: TiffEncoder<W, K>, args: &A
     let mut image = enc.new_image::<colortype::Gray32Float>(n, n)?;
     const ROWS: u32 = 16;
     image.rows_per_strip(ROWS)?;
-    let desc = format!("relief SYNTHETIC fractal terrain: fBm value noise, seed {}, {} octaves, {} m relief", args.seed, octaves, args.relief_m);
+    let desc = format!(
+        "relief SYNTHETIC fractal terrain: fBm value noise, seed {}, {} octaves, {} m relief",
+        args.seed, octaves, args.relief_m
+    );
     image.encoder().write_tag(Tag::ImageDescription, desc.as_str())?;
     image.encoder().write_tag(Tag::ModelPixelScaleTag, &[args.spacing, args.spacing, 0.0][..])?;
     image.encoder().write_tag(Tag::ModelTiepointTag, &[0.0, 0.0, 0.0, 0.0, n as f64 * args.spacing, 0.0][..])?;
@@ -128,7 +131,10 @@ fn write_png(file: BufWriter<File>, args: &Args, octaves: u32) -> Result<()> {
     enc.set_color(png::ColorType::Grayscale);
     enc.set_depth(png::BitDepth::Sixteen);
     enc.set_compression(png::Compression::Fast);
-    enc.add_text_chunk("Description".into(), format!("relief SYNTHETIC fractal terrain, seed {}; decimetres above -1000 m", args.seed))?;
+    enc.add_text_chunk(
+        "Description".into(),
+        format!("relief SYNTHETIC fractal terrain, seed {}; decimetres above -1000 m", args.seed),
+    )?;
     let mut writer = enc.write_header()?;
     let mut stream = writer.stream_writer()?;
     let mut heights = vec![0f32; n as usize];

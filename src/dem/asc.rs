@@ -40,12 +40,7 @@ struct Lines {
 impl Lines {
     fn open(path: &Path) -> Result<Lines> {
         let reader = BufReader::new(File::open(path).at(path)?);
-        Ok(Lines {
-            path: path.to_path_buf(),
-            reader,
-            line: String::new(),
-            number: 0,
-        })
+        Ok(Lines { path: path.to_path_buf(), reader, line: String::new(), number: 0 })
     }
 
     /// Reads the next line into `self.line`; false at the end of the file.
@@ -61,10 +56,9 @@ impl Lines {
                 }
                 Ok(true)
             }
-            Err(e) if e.kind() == std::io::ErrorKind::InvalidData => Err(Error::bad_dem(
-                &self.path,
-                format!("line {}: not text (invalid UTF-8)", self.number),
-            )),
+            Err(e) if e.kind() == std::io::ErrorKind::InvalidData => {
+                Err(Error::bad_dem(&self.path, format!("line {}: not text (invalid UTF-8)", self.number)))
+            }
             Err(e) => Err(Error::io(&self.path, e)),
         }
     }
@@ -140,12 +134,8 @@ fn read_header(lines: &mut Lines) -> Result<Header> {
         }
     }
 
-    let missing = |key: &str| {
-        Error::bad_dem(
-            &lines.path,
-            format!("header key '{key}' missing before line {}", lines.number),
-        )
-    };
+    let missing =
+        |key: &str| Error::bad_dem(&lines.path, format!("header key '{key}' missing before line {}", lines.number));
     let ncols = ncols.ok_or_else(|| missing("ncols"))?;
     let nrows = nrows.ok_or_else(|| missing("nrows"))?;
     if !xll {
@@ -157,24 +147,14 @@ fn read_header(lines: &mut Lines) -> Result<Header> {
         _ => return Err(missing("cellsize")),
     };
     if !(dx > 0.0 && dy > 0.0) {
-        return Err(Error::bad_dem(
-            &lines.path,
-            format!("cell size {dx} x {dy} is not positive"),
-        ));
+        return Err(Error::bad_dem(&lines.path, format!("cell size {dx} x {dy} is not positive")));
     }
     let yll_corner = match (yll_corner, yll_centre) {
         (Some(y), _) => y,
         (None, Some(y)) => y - dy / 2.0,
         (None, None) => return Err(missing("yllcorner")),
     };
-    Ok(Header {
-        ncols,
-        nrows,
-        yll_corner,
-        dx,
-        dy,
-        nodata,
-    })
+    Ok(Header { ncols, nrows, yll_corner, dx, dy, nodata })
 }
 
 /// Whether a `.prj` next to `path` describes geographic (unprojected) coordinates.
@@ -199,16 +179,9 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
     let (width, height) = check_dimensions(path, header.ncols, header.nrows)?;
     let spacing = if prj_is_geographic(path) {
         let centre_lat_deg = header.yll_corner + header.nrows as f64 * header.dy / 2.0;
-        SourceSpacing::Degrees {
-            x: header.dx,
-            y: header.dy,
-            centre_lat_deg,
-        }
+        SourceSpacing::Degrees { x: header.dx, y: header.dy, centre_lat_deg }
     } else {
-        SourceSpacing::Metres {
-            x: header.dx,
-            y: header.dy,
-        }
+        SourceSpacing::Metres { x: header.dx, y: header.dy }
     };
     let info = DemInfo {
         format: DemFormat::Asc,
@@ -218,10 +191,7 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         nodata: header.nodata,
         sample_type: "ascii decimal".into(),
     };
-    Ok(Box::new(Asc {
-        path: path.to_path_buf(),
-        info,
-    }))
+    Ok(Box::new(Asc { path: path.to_path_buf(), info }))
 }
 
 impl DemSource for Asc {
@@ -248,23 +218,13 @@ impl DemSource for Asc {
                         excerpt(token)
                     )));
                 }
-                let v: f64 = token
-                    .parse()
-                    .map_err(|_| lines.error(format!("'{}' is not a number", excerpt(token))))?;
-                let v = if Some(v) == nodata || !v.is_finite() {
-                    f64::NAN
-                } else {
-                    v
-                };
+                let v: f64 = token.parse().map_err(|_| lines.error(format!("'{}' is not a number", excerpt(token))))?;
+                let v = if Some(v) == nodata || !v.is_finite() { f64::NAN } else { v };
                 run.push(v);
                 found += 1;
                 let at_row_end = x0 as usize + run.len() == width as usize;
                 if at_row_end || run.len() == MAX_RUN {
-                    sink(Run {
-                        row,
-                        x0,
-                        values: &run,
-                    })?;
+                    sink(Run { row, x0, values: &run })?;
                     if at_row_end {
                         row += 1;
                         x0 = 0;

@@ -26,14 +26,10 @@ fn exr_error(path: &Path, e: exr::error::Error) -> Error {
             Error::bad_dem(path, "truncated OpenEXR (unexpected end of file)")
         }
         exr::error::Error::Io(e) => Error::io(path, e),
-        exr::error::Error::NotSupported(what) => Error::Unsupported {
-            path: path.to_path_buf(),
-            what: format!("OpenEXR feature: {}", one_line(&what)),
-        },
-        e => Error::bad_dem(
-            path,
-            format!("invalid OpenEXR: {}", one_line(&e.to_string())),
-        ),
+        exr::error::Error::NotSupported(what) => {
+            Error::Unsupported { path: path.to_path_buf(), what: format!("OpenEXR feature: {}", one_line(&what)) }
+        }
+        e => Error::bad_dem(path, format!("invalid OpenEXR: {}", one_line(&e.to_string()))),
     }
 }
 
@@ -49,14 +45,9 @@ fn start(path: &Path) -> Result<exr::block::reader::Reader<BufReader<File>>> {
 
 /// Which channel of the first layer holds the heights, after checking the file is readable.
 fn choose_channel(path: &Path, headers: &[Header]) -> Result<usize> {
-    let first = headers
-        .first()
-        .ok_or_else(|| Error::bad_dem(path, "OpenEXR without any part"))?;
+    let first = headers.first().ok_or_else(|| Error::bad_dem(path, "OpenEXR without any part"))?;
     if headers.iter().any(|h| h.deep) {
-        return Err(Error::Unsupported {
-            path: path.to_path_buf(),
-            what: "deep OpenEXR data".into(),
-        });
+        return Err(Error::Unsupported { path: path.to_path_buf(), what: "deep OpenEXR data".into() });
     }
     if headers.iter().any(|h| h.layer_size != first.layer_size) {
         return Err(Error::Unsupported {
@@ -70,20 +61,10 @@ fn choose_channel(path: &Path, headers: &[Header]) -> Result<usize> {
     }
     let index = HEIGHT_CHANNELS
         .iter()
-        .find_map(|name| {
-            channels
-                .iter()
-                .position(|c| c.name.eq_case_insensitive(name))
-        })
+        .find_map(|name| channels.iter().position(|c| c.name.eq_case_insensitive(name)))
         .unwrap_or(0);
-    if channels
-        .iter()
-        .any(|c| c.sampling.0 != 1 || c.sampling.1 != 1)
-    {
-        return Err(Error::Unsupported {
-            path: path.to_path_buf(),
-            what: "sub-sampled OpenEXR channels".into(),
-        });
+    if channels.iter().any(|c| c.sampling.0 != 1 || c.sampling.1 != 1) {
+        return Err(Error::Unsupported { path: path.to_path_buf(), what: "sub-sampled OpenEXR channels".into() });
     }
     Ok(index)
 }
@@ -107,18 +88,8 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         SampleType::U32 => "uint32",
     };
     let sample_type = format!("{kind} channel {}", description.name);
-    let info = DemInfo {
-        format: DemFormat::Exr,
-        width,
-        height,
-        spacing: None,
-        nodata: None,
-        sample_type,
-    };
-    Ok(Box::new(Exr {
-        path: path.to_path_buf(),
-        info,
-    }))
+    let info = DemInfo { format: DemFormat::Exr, width, height, spacing: None, nodata: None, sample_type };
+    Ok(Box::new(Exr { path: path.to_path_buf(), info }))
 }
 
 impl DemSource for Exr {
@@ -131,18 +102,14 @@ impl DemSource for Exr {
         let reader = start(path)?;
         let channel = choose_channel(path, reader.headers())?;
         let header = &reader.headers()[0];
-        if header.layer_size.0 != self.info.width as usize
-            || header.layer_size.1 != self.info.height as usize
-        {
+        if header.layer_size.0 != self.info.width as usize || header.layer_size.1 != self.info.height as usize {
             return Err(Error::bad_dem(path, "OpenEXR changed since it was opened"));
         }
         let channels = header.channels.list.clone();
         let sample_type = channels[channel].sample_type;
 
         let chunks = reader
-            .filter_chunks(false, |_, tile, block| {
-                block.layer == 0 && tile.is_largest_resolution_level()
-            })
+            .filter_chunks(false, |_, tile, block| block.layer == 0 && tile.is_largest_resolution_level())
             .map_err(|e| exr_error(path, e))?;
         let mut blocks = chunks.sequential_decompressor(false);
 
@@ -154,25 +121,14 @@ impl DemSource for Exr {
             let block = block.map_err(|e| exr_error(path, e))?;
             let (x, y) = (block.index.pixel_position.0, block.index.pixel_position.1);
             let (w, h) = (block.index.pixel_size.0, block.index.pixel_size.1);
-            if x.checked_add(w).is_none_or(|e| e > width)
-                || y.checked_add(h).is_none_or(|e| e > height)
-            {
-                return Err(Error::bad_dem(
-                    path,
-                    format!("OpenEXR block at ({x}, {y}) lies outside the image"),
-                ));
+            if x.checked_add(w).is_none_or(|e| e > width) || y.checked_add(h).is_none_or(|e| e > height) {
+                return Err(Error::bad_dem(path, format!("OpenEXR block at ({x}, {y}) lies outside the image")));
             }
             if !seen.insert((x, y)) {
-                return Err(Error::bad_dem(
-                    path,
-                    format!("OpenEXR block at ({x}, {y}) appears twice"),
-                ));
+                return Err(Error::bad_dem(path, format!("OpenEXR block at ({x}, {y}) appears twice")));
             }
             // Each line of the block holds all samples of channel 0, then of channel 1, ….
-            let line_bytes: Vec<usize> = channels
-                .iter()
-                .map(|c| w * c.sample_type.bytes_per_sample())
-                .collect();
+            let line_bytes: Vec<usize> = channels.iter().map(|c| w * c.sample_type.bytes_per_sample()).collect();
             let stride: usize = line_bytes.iter().sum();
             let offset: usize = line_bytes[..channel].iter().sum();
             for line in 0..h {
@@ -187,25 +143,19 @@ impl DemSource for Exr {
                     SampleType::F16 => runs.emit(
                         row,
                         x0,
-                        bytes
-                            .chunks_exact(2)
-                            .map(|b| finite(f16::from_ne_bytes([b[0], b[1]]).to_f64())),
+                        bytes.chunks_exact(2).map(|b| finite(f16::from_ne_bytes([b[0], b[1]]).to_f64())),
                         sink,
                     )?,
                     SampleType::F32 => runs.emit(
                         row,
                         x0,
-                        bytes.chunks_exact(4).map(|b| {
-                            finite(f64::from(f32::from_ne_bytes([b[0], b[1], b[2], b[3]])))
-                        }),
+                        bytes.chunks_exact(4).map(|b| finite(f64::from(f32::from_ne_bytes([b[0], b[1], b[2], b[3]])))),
                         sink,
                     )?,
                     SampleType::U32 => runs.emit(
                         row,
                         x0,
-                        bytes
-                            .chunks_exact(4)
-                            .map(|b| f64::from(u32::from_ne_bytes([b[0], b[1], b[2], b[3]]))),
+                        bytes.chunks_exact(4).map(|b| f64::from(u32::from_ne_bytes([b[0], b[1], b[2], b[3]]))),
                         sink,
                     )?,
                 }
@@ -214,10 +164,7 @@ impl DemSource for Exr {
         }
         let expected = u64::from(self.info.width) * u64::from(self.info.height);
         if delivered != expected {
-            return Err(Error::bad_dem(
-                path,
-                format!("OpenEXR blocks cover {delivered} of {expected} samples"),
-            ));
+            return Err(Error::bad_dem(path, format!("OpenEXR blocks cover {delivered} of {expected} samples")));
         }
         Ok(())
     }

@@ -37,10 +37,9 @@ fn tiff_error(path: &Path, e: TiffError) -> Error {
             Error::bad_dem(path, "truncated TIFF (unexpected end of file)")
         }
         TiffError::IoError(e) => Error::io(path, e),
-        TiffError::UnsupportedError(e) => Error::Unsupported {
-            path: path.to_path_buf(),
-            what: format!("TIFF feature: {e}"),
-        },
+        TiffError::UnsupportedError(e) => {
+            Error::Unsupported { path: path.to_path_buf(), what: format!("TIFF feature: {e}") }
+        }
         e => Error::bad_dem(path, format!("invalid TIFF: {}", one_line(&e.to_string()))),
     }
 }
@@ -74,10 +73,7 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         | ColorType::Lab(b)
         | ColorType::Multiband { bit_depth: b, .. } => b,
         other => {
-            return Err(Error::Unsupported {
-                path: path.to_path_buf(),
-                what: format!("TIFF colour type {other:?}"),
-            })
+            return Err(Error::Unsupported { path: path.to_path_buf(), what: format!("TIFF colour type {other:?}") })
         }
     };
     if !matches!(bits, 8 | 16 | 32 | 64) {
@@ -108,52 +104,30 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
     let nodata = read_nodata(path, &mut decoder)?;
     let spacing = read_spacing(path, &mut decoder, height)?;
 
-    let info = DemInfo {
-        format: DemFormat::GeoTiff,
-        width,
-        height,
-        spacing,
-        nodata,
-        sample_type,
-    };
-    Ok(Box::new(GeoTiff {
-        path: path.to_path_buf(),
-        decoder,
-        info,
-    }))
+    let info = DemInfo { format: DemFormat::GeoTiff, width, height, spacing, nodata, sample_type };
+    Ok(Box::new(GeoTiff { path: path.to_path_buf(), decoder, info }))
 }
 
 /// GDAL_NODATA is an ASCII number; an unparsable one is ignored rather than fatal.
 fn read_nodata(path: &Path, decoder: &mut Decoder<BufReader<File>>) -> Result<Option<f64>> {
-    let Some(value) = decoder
-        .find_tag(Tag::GdalNodata)
-        .map_err(|e| tiff_error(path, e))?
-    else {
+    let Some(value) = decoder.find_tag(Tag::GdalNodata).map_err(|e| tiff_error(path, e))? else {
         return Ok(None);
     };
     let text = match value.into_string() {
         Ok(t) => t,
         Err(_) => return Ok(None),
     };
-    Ok(text
-        .trim_matches(|c: char| c == '\0' || c.is_whitespace())
-        .parse::<f64>()
-        .ok())
+    Ok(text.trim_matches(|c: char| c == '\0' || c.is_whitespace()).parse::<f64>().ok())
 }
 
 /// Reads the post spacing from the GeoTIFF tags (see the module doc).
-fn read_spacing(
-    path: &Path,
-    decoder: &mut Decoder<BufReader<File>>,
-    height: u32,
-) -> Result<Option<SourceSpacing>> {
-    let find_f64s =
-        |decoder: &mut Decoder<BufReader<File>>, tag: Tag| -> Result<Option<Vec<f64>>> {
-            match decoder.find_tag(tag).map_err(|e| tiff_error(path, e))? {
-                Some(v) => Ok(v.into_f64_vec().ok()),
-                None => Ok(None),
-            }
-        };
+fn read_spacing(path: &Path, decoder: &mut Decoder<BufReader<File>>, height: u32) -> Result<Option<SourceSpacing>> {
+    let find_f64s = |decoder: &mut Decoder<BufReader<File>>, tag: Tag| -> Result<Option<Vec<f64>>> {
+        match decoder.find_tag(tag).map_err(|e| tiff_error(path, e))? {
+            Some(v) => Ok(v.into_f64_vec().ok()),
+            None => Ok(None),
+        }
+    };
     let scale = find_f64s(decoder, Tag::ModelPixelScaleTag)?;
     let tie = find_f64s(decoder, Tag::ModelTiepointTag)?;
     let transform = find_f64s(decoder, Tag::ModelTransformationTag)?;
@@ -168,19 +142,14 @@ fn read_spacing(
             (sx.abs(), sy.abs(), j, y)
         }
         // A transformation without rotation or shear: X = m0·i + m3, Y = m5·j + m7.
-        (_, Some(m)) if m.len() >= 8 && m[1] == 0.0 && m[4] == 0.0 => {
-            (m[0].abs(), m[5].abs(), 0.0, Some(m[7]))
-        }
+        (_, Some(m)) if m.len() >= 8 && m[1] == 0.0 && m[4] == 0.0 => (m[0].abs(), m[5].abs(), 0.0, Some(m[7])),
         _ => return Ok(None),
     };
     if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0) {
         return Ok(None);
     }
 
-    let keys = match decoder
-        .find_tag(Tag::GeoKeyDirectoryTag)
-        .map_err(|e| tiff_error(path, e))?
-    {
+    let keys = match decoder.find_tag(Tag::GeoKeyDirectoryTag).map_err(|e| tiff_error(path, e))? {
         Some(v) => v.into_u16_vec().unwrap_or_default(),
         None => Vec::new(),
     };
@@ -193,32 +162,21 @@ fn read_spacing(
         if !centre_lat_deg.is_finite() {
             return Ok(None);
         }
-        return Ok(Some(SourceSpacing::Degrees {
-            x: sx,
-            y: sy,
-            centre_lat_deg,
-        }));
+        return Ok(Some(SourceSpacing::Degrees { x: sx, y: sy, centre_lat_deg }));
     }
     let unit = match geo_key(&keys, PROJ_LINEAR_UNITS) {
         Some(UNIT_FOOT) => 0.3048,
         Some(UNIT_US_SURVEY_FOOT) => 1200.0 / 3937.0,
         _ => 1.0,
     };
-    Ok(Some(SourceSpacing::Metres {
-        x: sx * unit,
-        y: sy * unit,
-    }))
+    Ok(Some(SourceSpacing::Metres { x: sx * unit, y: sy * unit }))
 }
 
 /// Looks up a SHORT-valued key stored inline in a GeoKeyDirectory (header of 4 shorts, then
 /// entries `[key, location, count, value]`; location 0 means the value is inline).
 fn geo_key(keys: &[u16], wanted: u16) -> Option<u16> {
     let count = usize::from(*keys.get(3)?);
-    keys.get(4..)?
-        .chunks_exact(4)
-        .take(count)
-        .find(|e| e[0] == wanted && e[1] == 0)
-        .map(|e| e[3])
+    keys.get(4..)?.chunks_exact(4).take(count).find(|e| e[0] == wanted && e[1] == 0).map(|e| e[3])
 }
 
 impl DemSource for GeoTiff {
@@ -237,9 +195,7 @@ impl DemSource for GeoTiff {
         let down = height.div_ceil(chunk_h);
         let chunk_count = match self.decoder.get_chunk_type() {
             ChunkType::Strip => down,
-            ChunkType::Tile => across
-                .checked_mul(down)
-                .ok_or_else(|| Error::bad_dem(path, "too many TIFF tiles"))?,
+            ChunkType::Tile => across.checked_mul(down).ok_or_else(|| Error::bad_dem(path, "too many TIFF tiles"))?,
         };
         let across = match self.decoder.get_chunk_type() {
             ChunkType::Strip => 1,
@@ -256,10 +212,7 @@ impl DemSource for GeoTiff {
             // The data dimensions exclude the padding of right and bottom edge chunks.
             let data_w = chunk_w.min(width - x0);
             let data_h = chunk_h.min(height - y0);
-            let data = self
-                .decoder
-                .read_chunk(chunk)
-                .map_err(|e| tiff_error(path, e))?;
+            let data = self.decoder.read_chunk(chunk).map_err(|e| tiff_error(path, e))?;
             let pixels = data_w as usize * data_h as usize;
             let len = decoded_len(&data);
             if pixels == 0 || !len.is_multiple_of(pixels) || len < pixels {
@@ -269,38 +222,16 @@ impl DemSource for GeoTiff {
                 ));
             }
             let spp = len / pixels;
-            let geometry = ChunkGeometry {
-                x0,
-                y0,
-                data_w,
-                data_h,
-                spp,
-            };
+            let geometry = ChunkGeometry { x0, y0, data_w, data_h, spp };
             match &data {
-                DecodingResult::U8(v) => {
-                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
-                }
-                DecodingResult::U16(v) => {
-                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
-                }
-                DecodingResult::U32(v) => {
-                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
-                }
-                DecodingResult::U64(v) => {
-                    geometry.emit(v, |s| int_sample(s as f64, nodata), &mut runs, sink)?
-                }
-                DecodingResult::I8(v) => {
-                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
-                }
-                DecodingResult::I16(v) => {
-                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
-                }
-                DecodingResult::I32(v) => {
-                    geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?
-                }
-                DecodingResult::I64(v) => {
-                    geometry.emit(v, |s| int_sample(s as f64, nodata), &mut runs, sink)?
-                }
+                DecodingResult::U8(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
+                DecodingResult::U16(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
+                DecodingResult::U32(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
+                DecodingResult::U64(v) => geometry.emit(v, |s| int_sample(s as f64, nodata), &mut runs, sink)?,
+                DecodingResult::I8(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
+                DecodingResult::I16(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
+                DecodingResult::I32(v) => geometry.emit(v, |s| int_sample(s.into(), nodata), &mut runs, sink)?,
+                DecodingResult::I64(v) => geometry.emit(v, |s| int_sample(s as f64, nodata), &mut runs, sink)?,
                 DecodingResult::F16(v) => {
                     let nd = nodata.map(|n| n as f32);
                     geometry.emit(v, |s| f32_sample(s.to_f32(), nd), &mut runs, sink)?
@@ -340,8 +271,7 @@ fn int_sample(v: f64, nodata: Option<f64>) -> f64 {
 /// Huge sentinels (|nodata| ≥ 1e38) also match within a relative 1e-5, since some writers print
 /// them with few digits (`-3.40282e+38` for `f32::MIN`).
 fn f32_sample(v: f32, nodata: Option<f32>) -> f64 {
-    let is_nodata =
-        nodata.is_some_and(|nd| v == nd || (nd.abs() >= 1e38 && (v - nd).abs() <= nd.abs() * 1e-5));
+    let is_nodata = nodata.is_some_and(|nd| v == nd || (nd.abs() >= 1e38 && (v - nd).abs() <= nd.abs() * 1e-5));
     if is_nodata || !v.is_finite() {
         f64::NAN
     } else {
@@ -384,11 +314,7 @@ impl ChunkGeometry {
         sink: &mut dyn FnMut(Run<'_>) -> Result<()>,
     ) -> Result<()> {
         let row_len = self.data_w as usize * self.spp;
-        for (r, row) in data
-            .chunks_exact(row_len)
-            .take(self.data_h as usize)
-            .enumerate()
-        {
+        for (r, row) in data.chunks_exact(row_len).take(self.data_h as usize).enumerate() {
             let samples = row.iter().step_by(self.spp).map(|&s| convert(s));
             runs.emit(self.y0 + r as u32, self.x0, samples, sink)?;
         }

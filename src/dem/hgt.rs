@@ -69,19 +69,12 @@ struct Hgt {
 pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
     let size = std::fs::metadata(path).at(path)?.len();
     let side = side_for_size(size).ok_or_else(|| {
-        Error::bad_dem(
-            path,
-            format!("size {size} bytes is not that of a square .hgt tile (2·1201² or 2·3601²)"),
-        )
+        Error::bad_dem(path, format!("size {size} bytes is not that of a square .hgt tile (2·1201² or 2·3601²)"))
     })?;
     let (width, height) = check_dimensions(path, side, side)?;
     let spacing = parse_tile_name(path).map(|(lat, _lon)| {
         let step = 1.0 / (side - 1) as f64;
-        SourceSpacing::Degrees {
-            x: step,
-            y: step,
-            centre_lat_deg: lat + 0.5,
-        }
+        SourceSpacing::Degrees { x: step, y: step, centre_lat_deg: lat + 0.5 }
     });
     let info = DemInfo {
         format: DemFormat::Hgt,
@@ -91,10 +84,7 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         nodata: Some(f64::from(VOID)),
         sample_type: "int16 big-endian".into(),
     };
-    Ok(Box::new(Hgt {
-        path: path.to_path_buf(),
-        info,
-    }))
+    Ok(Box::new(Hgt { path: path.to_path_buf(), info }))
 }
 
 impl DemSource for Hgt {
@@ -115,12 +105,10 @@ impl DemSource for Hgt {
                     Error::io(path, e)
                 }
             })?;
-            let samples = row
-                .chunks_exact(2)
-                .map(|b| match i16::from_be_bytes([b[0], b[1]]) {
-                    VOID => f64::NAN,
-                    h => f64::from(h),
-                });
+            let samples = row.chunks_exact(2).map(|b| match i16::from_be_bytes([b[0], b[1]]) {
+                VOID => f64::NAN,
+                h => f64::from(h),
+            });
             runs.emit(y, 0, samples, sink)?;
         }
         Ok(())

@@ -158,10 +158,7 @@ pub fn detect(path: &Path) -> Result<DemFormat> {
     (&mut file).take(512).read_to_end(&mut head).at(path)?;
     drop(file);
 
-    let extension = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
+    let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
 
     if head.starts_with(b"II*\0")
         || head.starts_with(b"MM\0*")
@@ -193,10 +190,7 @@ pub fn detect(path: &Path) -> Result<DemFormat> {
         };
         format!("first bytes {}, {ext}", bytes.join(" "))
     };
-    Err(Error::UnknownFormat {
-        path: path.to_path_buf(),
-        hint,
-    })
+    Err(Error::UnknownFormat { path: path.to_path_buf(), hint })
 }
 
 /// The most samples a DEM may have (2^40): more is certainly a corrupt header, and would overflow
@@ -211,19 +205,13 @@ const MAX_RUN: usize = 1 << 14;
 /// [`MAX_SAMPLES`].
 fn check_dimensions(path: &Path, width: u64, height: u64) -> Result<(u32, u32)> {
     if width == 0 || height == 0 {
-        return Err(Error::bad_dem(
-            path,
-            format!("empty grid ({width} x {height})"),
-        ));
+        return Err(Error::bad_dem(path, format!("empty grid ({width} x {height})")));
     }
     let w = u32::try_from(width);
     let h = u32::try_from(height);
     match (w, h, width.checked_mul(height)) {
         (Ok(w), Ok(h), Some(n)) if n <= MAX_SAMPLES => Ok((w, h)),
-        _ => Err(Error::bad_dem(
-            path,
-            format!("absurd dimensions {width} x {height} (more than 2^40 samples)"),
-        )),
+        _ => Err(Error::bad_dem(path, format!("absurd dimensions {width} x {height} (more than 2^40 samples)"))),
     }
 }
 
@@ -250,21 +238,13 @@ impl RunBuffer {
         for v in samples {
             self.values.push(v);
             if self.values.len() == MAX_RUN {
-                sink(Run {
-                    row,
-                    x0: x,
-                    values: &self.values,
-                })?;
+                sink(Run { row, x0: x, values: &self.values })?;
                 x = x.saturating_add(MAX_RUN as u32);
                 self.values.clear();
             }
         }
         if !self.values.is_empty() {
-            sink(Run {
-                row,
-                x0: x,
-                values: &self.values,
-            })?;
+            sink(Run { row, x0: x, values: &self.values })?;
             self.values.clear();
         }
         Ok(())

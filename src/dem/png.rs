@@ -71,12 +71,7 @@ pub(super) fn detect_kind(path: &Path) -> Result<DemFormat> {
     match colour {
         ColorType::Grayscale | ColorType::GrayscaleAlpha => return Ok(DemFormat::Png),
         ColorType::Rgb | ColorType::Rgba => {}
-        ColorType::Indexed => {
-            return Err(Error::Unsupported {
-                path: path.to_path_buf(),
-                what: "palette PNG".into(),
-            })
-        }
+        ColorType::Indexed => return Err(Error::Unsupported { path: path.to_path_buf(), what: "palette PNG".into() }),
     }
     if depth != BitDepth::Eight {
         return Err(Error::Unsupported {
@@ -85,17 +80,11 @@ pub(super) fn detect_kind(path: &Path) -> Result<DemFormat> {
         });
     }
 
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
+    let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
     if name.contains("terrarium") {
         return Ok(DemFormat::Terrarium);
     }
-    if ["terrain-rgb", "terrain_rgb", "terrainrgb", "mapbox"]
-        .iter()
-        .any(|h| name.contains(h))
-    {
+    if ["terrain-rgb", "terrain_rgb", "terrainrgb", "mapbox"].iter().any(|h| name.contains(h)) {
         return Ok(DemFormat::TerrainRgb);
     }
 
@@ -127,11 +116,7 @@ pub(super) fn detect_kind(path: &Path) -> Result<DemFormat> {
             break;
         }
     }
-    Ok(if median < TERRAIN_RGB_MAX_RED {
-        DemFormat::TerrainRgb
-    } else {
-        DemFormat::Terrarium
-    })
+    Ok(if median < TERRAIN_RGB_MAX_RED { DemFormat::TerrainRgb } else { DemFormat::Terrarium })
 }
 
 /// How one output row of the decoder turns into heights.
@@ -167,10 +152,7 @@ impl Layout {
                     f64::from(u16::from_be_bytes([px[0], px[1]]))
                 }
             }
-            Layout::Rgb {
-                channels,
-                terrarium,
-            } => {
+            Layout::Rgb { channels, terrarium } => {
                 if channels == 4 && px[3] == 0 {
                     return f64::NAN;
                 }
@@ -186,28 +168,15 @@ impl Layout {
 }
 
 /// Works out how to read the decoder's output as `format`, or says why it cannot be.
-fn layout_for(
-    path: &Path,
-    format: DemFormat,
-    colour: ColorType,
-    depth: BitDepth,
-) -> Result<Layout> {
+fn layout_for(path: &Path, format: DemFormat, colour: ColorType, depth: BitDepth) -> Result<Layout> {
     let bytes = match depth {
         BitDepth::Eight => 1,
         BitDepth::Sixteen => 2,
-        other => {
-            return Err(Error::Unsupported {
-                path: path.to_path_buf(),
-                what: format!("PNG bit depth {other:?}"),
-            })
-        }
+        other => return Err(Error::Unsupported { path: path.to_path_buf(), what: format!("PNG bit depth {other:?}") }),
     };
     let gray = matches!(colour, ColorType::Grayscale | ColorType::GrayscaleAlpha);
     match format {
-        DemFormat::Png if gray => Ok(Layout::Gray {
-            bytes,
-            alpha: colour == ColorType::GrayscaleAlpha,
-        }),
+        DemFormat::Png if gray => Ok(Layout::Gray { bytes, alpha: colour == ColorType::GrayscaleAlpha }),
         DemFormat::Png => Err(Error::bad_dem(
             path,
             "colour PNG cannot be read as a grayscale height PNG (use terrain-rgb or terrarium)",
@@ -220,14 +189,10 @@ fn layout_for(
             path: path.to_path_buf(),
             what: format!("16-bit colour PNG as {format} (which is 8-bit RGB or RGBA)"),
         }),
-        DemFormat::TerrainRgb | DemFormat::Terrarium => Ok(Layout::Rgb {
-            channels: colour.samples(),
-            terrarium: format == DemFormat::Terrarium,
-        }),
-        _ => Err(Error::bad_dem(
-            path,
-            format!("a PNG cannot be read as {format}"),
-        )),
+        DemFormat::TerrainRgb | DemFormat::Terrarium => {
+            Ok(Layout::Rgb { channels: colour.samples(), terrarium: format == DemFormat::Terrarium })
+        }
+        _ => Err(Error::bad_dem(path, format!("a PNG cannot be read as {format}"))),
     }
 }
 
@@ -245,27 +210,13 @@ pub(super) fn open(path: &Path, format: DemFormat) -> Result<Box<dyn DemSource>>
     let layout = layout_for(path, format, colour, depth)?;
     let sample_type = match layout {
         Layout::Gray { bytes, alpha } => {
-            format!(
-                "uint{} gray{}",
-                bytes * 8,
-                if alpha { "+alpha" } else { "" }
-            )
+            format!("uint{} gray{}", bytes * 8, if alpha { "+alpha" } else { "" })
         }
         Layout::Rgb { channels: 3, .. } => "uint8 rgb".to_string(),
         Layout::Rgb { .. } => "uint8 rgba".to_string(),
     };
-    let info = DemInfo {
-        format,
-        width,
-        height,
-        spacing: None,
-        nodata: None,
-        sample_type,
-    };
-    Ok(Box::new(PngSource {
-        path: path.to_path_buf(),
-        info,
-    }))
+    let info = DemInfo { format, width, height, spacing: None, nodata: None, sample_type };
+    Ok(Box::new(PngSource { path: path.to_path_buf(), info }))
 }
 
 impl DemSource for PngSource {
@@ -293,9 +244,7 @@ impl DemSource for PngSource {
             if data.len() < row_bytes {
                 return Err(Error::bad_dem(path, format!("PNG row {y} is too short")));
             }
-            let samples = data[..row_bytes]
-                .chunks_exact(bpp)
-                .map(|px| layout.height(px));
+            let samples = data[..row_bytes].chunks_exact(bpp).map(|px| layout.height(px));
             runs.emit(y, 0, samples, sink)?;
         }
         // Checks the rest of the image data (checksums, trailing chunks).

@@ -41,10 +41,7 @@ pub struct Embedded {
 
 impl Embedded {
     pub fn new(grid: Grid) -> Self {
-        Embedded {
-            grid,
-            records: 4 + morton::quad_sum(grid.n() + 1),
-        }
+        Embedded { grid, records: 4 + morton::quad_sum(grid.n() + 1) }
     }
 }
 
@@ -119,18 +116,7 @@ impl Layout for Embedded {
         let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
         let base = 4 * i - 11;
         let s = 2 * i + j;
-        [
-            Vertex {
-                x: l.0,
-                y: l.1,
-                index: base + ((s + 2) & 3),
-            },
-            Vertex {
-                x: r.0,
-                y: r.1,
-                index: base + ((s + 3) & 3),
-            },
-        ]
+        [Vertex { x: l.0, y: l.1, index: base + ((s + 2) & 3) }, Vertex { x: r.0, y: r.1, index: base + ((s + 3) & 3) }]
     }
 }
 
@@ -145,16 +131,8 @@ impl Embedded {
         if apex.index == 4 {
             let j = split.index;
             [
-                Vertex {
-                    x: l.0,
-                    y: l.1,
-                    index: 21 - 3 * ((j + 2) & 3),
-                },
-                Vertex {
-                    x: r.0,
-                    y: r.1,
-                    index: 21 - 3 * ((j + 3) & 3),
-                },
+                Vertex { x: l.0, y: l.1, index: 21 - 3 * ((j + 2) & 3) },
+                Vertex { x: r.0, y: r.1, index: 21 - 3 * ((j + 3) & 3) },
             ]
         } else {
             [self.vertex(l.0, l.1), self.vertex(r.0, r.1)]
@@ -224,17 +202,11 @@ mod tests {
                         // Only black nodes have children outside the grid. Such a ghost slot
                         // holds a white node exactly in the four black level-2 ghost subtrees
                         // (so always for the children of w, s, e, n), else it is unused.
-                        assert!(!matches!(
-                            g.kind(x as u32, y as u32),
-                            VertexKind::SquareCentre { .. }
-                        ));
+                        assert!(!matches!(g.kind(x as u32, y as u32), VertexKind::SquareCentre { .. }));
                         if let Some((wx, wy)) = got {
                             assert!(matches!(g.kind(wx, wy), VertexKind::SquareCentre { .. }));
                         } else {
-                            assert!(
-                                p > 8,
-                                "n={n}: ghost child of level-1 node {p} must be white"
-                            );
+                            assert!(p > 8, "n={n}: ghost child of level-1 node {p} must be white");
                         }
                     }
                 }

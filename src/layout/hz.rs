@@ -130,20 +130,7 @@ mod tests {
         // edges at step 1.
         let l = Hz::new(Grid::new(1).unwrap());
         let order: Vec<_> = (0..9).map(|i| l.coords(i).unwrap()).collect();
-        assert_eq!(
-            order,
-            [
-                (0, 0),
-                (2, 2),
-                (0, 2),
-                (2, 0),
-                (0, 1),
-                (1, 0),
-                (1, 1),
-                (1, 2),
-                (2, 1)
-            ]
-        );
+        assert_eq!(order, [(0, 0), (2, 2), (0, 2), (2, 0), (0, 1), (1, 0), (1, 1), (1, 2), (2, 1)]);
     }
 
     #[test]

@@ -47,10 +47,7 @@ pub struct Interleaved {
 
 impl Interleaved {
     pub fn new(grid: Grid) -> Self {
-        Interleaved {
-            grid,
-            records: 4 + 5 * morton::quad_sum(grid.n()),
-        }
+        Interleaved { grid, records: 4 + 5 * morton::quad_sum(grid.n()) }
     }
 }
 
@@ -80,11 +77,7 @@ pub(crate) fn level_offset(x: u32, y: u32, t: u32, n: u32) -> (bool, u64) {
     let white = (x >> t) & (y >> t) & 1 == 1;
     let (x, y) = (x as u64, y as u64);
     let low = (1u64 << (n - t - 1)) - 1;
-    let (a, b, flip) = if white {
-        (x, y, 0)
-    } else {
-        (x + (1u64 << n) - y, x + y, low)
-    };
+    let (a, b, flip) = if white { (x, y, 0) } else { (x + (1u64 << n) - y, x + y, low) };
     let (xs, ys) = ((a >> (t + 1)) as u32, ((b >> (t + 1)) ^ flip) as u32);
     (white, morton::encode(xs ^ ys, ys))
 }
@@ -94,10 +87,7 @@ pub(crate) fn level_offset(x: u32, y: u32, t: u32, n: u32) -> (bool, u64) {
 pub(crate) fn white_coords(offset: u64, t: u32) -> (u32, u32) {
     let (a, by) = morton::decode(offset);
     let bx = a ^ by;
-    (
-        ((2 * bx as u64 + 1) << t) as u32,
-        ((2 * by as u64 + 1) << t) as u32,
-    )
+    (((2 * bx as u64 + 1) << t) as u32, ((2 * by as u64 + 1) << t) as u32)
 }
 
 /// Inverse of [`level_offset`] for a black node; `None` for a ghost.
@@ -177,18 +167,7 @@ impl Layout for Interleaved {
         let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
         let base = 4 * i - 7;
         let s = 2 * i + j;
-        [
-            Vertex {
-                x: l.0,
-                y: l.1,
-                index: base + ((s + 2) & 3),
-            },
-            Vertex {
-                x: r.0,
-                y: r.1,
-                index: base + ((s + 3) & 3),
-            },
-        ]
+        [Vertex { x: l.0, y: l.1, index: base + ((s + 2) & 3) }, Vertex { x: r.0, y: r.1, index: base + ((s + 3) & 3) }]
     }
 }
 
@@ -213,10 +192,7 @@ mod tests {
         let l = Interleaved::new(g);
         let [sw, se, ne, nw] = g.corners();
         let [w, s, e, n] = g.edge_midpoints();
-        let ids: Vec<u64> = [sw, se, ne, nw, g.centre(), w, s, e, n]
-            .iter()
-            .map(|&(x, y)| l.index(x, y))
-            .collect();
+        let ids: Vec<u64> = [sw, se, ne, nw, g.centre(), w, s, e, n].iter().map(|&(x, y)| l.index(x, y)).collect();
         assert_eq!(ids, (0..9).collect::<Vec<_>>());
         // White level 2: sw, se, ne, nw centres.
         assert_eq!(l.index(2, 2), 9);
@@ -246,9 +222,7 @@ mod tests {
                 let Some((x, y)) = l.coords(p) else { continue };
                 let (x, y) = (x as i64, y as i64);
                 let dirs: [(i64, i64); 4] = match g.kind(x as u32, y as u32) {
-                    crate::hierarchy::VertexKind::SquareCentre { .. } => {
-                        [(-1, -1), (1, -1), (1, 1), (-1, 1)]
-                    }
+                    crate::hierarchy::VertexKind::SquareCentre { .. } => [(-1, -1), (1, -1), (1, 1), (-1, 1)],
                     _ => [(0, 1), (1, 0), (0, -1), (-1, 0)],
                 };
                 let h = 1i64 << (x | y).trailing_zeros();
@@ -260,11 +234,7 @@ mod tests {
                     let (cx, cy) = (x + dx * h / 2, y + dy * h / 2);
                     let inside = (0..=m).contains(&cx) && (0..=m).contains(&cy);
                     let got = l.coords(4 * p - 7 + k as u64);
-                    assert_eq!(
-                        got,
-                        inside.then_some((cx as u32, cy as u32)),
-                        "n={n} p={p} k={k}"
-                    );
+                    assert_eq!(got, inside.then_some((cx as u32, cy as u32)), "n={n} p={p} k={k}");
                 }
             }
         }

@@ -33,13 +33,8 @@ pub enum LayoutKind {
 }
 
 impl LayoutKind {
-    pub const ALL: [LayoutKind; 5] = [
-        LayoutKind::RowMajor,
-        LayoutKind::Tiled,
-        LayoutKind::Interleaved,
-        LayoutKind::Embedded,
-        LayoutKind::Hz,
-    ];
+    pub const ALL: [LayoutKind; 5] =
+        [LayoutKind::RowMajor, LayoutKind::Tiled, LayoutKind::Interleaved, LayoutKind::Embedded, LayoutKind::Hz];
 
     /// The name used on the command line and in JSON.
     pub fn name(self) -> &'static str {
@@ -97,11 +92,7 @@ pub trait Layout: Clone + Send + Sync + 'static {
 
     #[inline(always)]
     fn vertex(&self, x: u32, y: u32) -> Vertex {
-        Vertex {
-            x,
-            y,
-            index: self.index(x, y),
-        }
+        Vertex { x, y, index: self.index(x, y) }
     }
 
     /// The two DAG children of `split` on `apex`'s side, left first in strip order (see
@@ -149,27 +140,16 @@ pub fn default_tile_side(record_bytes: u32) -> u32 {
 impl AnyLayout {
     /// Builds a layout of `kind` for `grid`. `param` is the tile side for `tiled` (a power of two
     /// >= 1, or 0 for the default); it must be 0 for the other layouts.
-    pub fn new(
-        kind: LayoutKind,
-        grid: Grid,
-        param: u32,
-        record_bytes: u32,
-    ) -> Result<AnyLayout, String> {
+    pub fn new(kind: LayoutKind, grid: Grid, param: u32, record_bytes: u32) -> Result<AnyLayout, String> {
         if kind != LayoutKind::Tiled && param != 0 {
             return Err(format!("layout {kind} takes no parameter (got {param})"));
         }
         Ok(match kind {
             LayoutKind::RowMajor => AnyLayout::RowMajor(RowMajor::new(grid)),
             LayoutKind::Tiled => {
-                let side = if param == 0 {
-                    default_tile_side(record_bytes)
-                } else {
-                    param
-                };
+                let side = if param == 0 { default_tile_side(record_bytes) } else { param };
                 if !side.is_power_of_two() || side > (1 << 15) {
-                    return Err(format!(
-                        "tile side must be a power of two up to 32768, got {side}"
-                    ));
+                    return Err(format!("tile side must be a power of two up to 32768, got {side}"));
                 }
                 AnyLayout::Tiled(Tiled::new(grid, side))
             }

@@ -12,10 +12,7 @@ pub struct RowMajor {
 
 impl RowMajor {
     pub fn new(grid: Grid) -> Self {
-        RowMajor {
-            grid,
-            side: grid.size() as u64,
-        }
+        RowMajor { grid, side: grid.size() as u64 }
     }
 }
 

@@ -35,16 +35,8 @@ impl Tiled {
     /// If `side` is not a power of two (callers validate user input first, see
     /// [`super::AnyLayout::new`]).
     pub fn new(grid: Grid, side: u32) -> Self {
-        assert!(
-            side.is_power_of_two(),
-            "tile side must be a power of two, got {side}"
-        );
-        Tiled {
-            grid,
-            side,
-            shift: side.trailing_zeros(),
-            p: grid.size() as u64,
-        }
+        assert!(side.is_power_of_two(), "tile side must be a power of two, got {side}");
+        Tiled { grid, side, shift: side.trailing_zeros(), p: grid.size() as u64 }
     }
 
     /// Extent of tile number `t` (a width for a tile column, a height for a tile row).
