@@ -282,9 +282,10 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
                 for (r, &v) in dst.iter_mut().zip(run.values) {
                     let z = v * z_scale + z_offset;
                     if z.is_finite() {
-                        z_min = z_min.min(z);
-                        z_max = z_max.max(z);
+                        // The range is that of the stored (f32) heights.
                         r.z = z as f32;
+                        z_min = z_min.min(r.z as f64);
+                        z_max = z_max.max(r.z as f64);
                     } else {
                         nan_count += 1;
                         r.z = f32::NAN;
@@ -304,9 +305,13 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
 
         // 2. Fill voids and pad.
         let t = Instant::now();
-        let filled =
-            if nan_count > 0 { fill::fill_voids(grid_records, side, width as usize, height as usize) } else { 0 };
-        debug_assert_eq!(filled, nan_count);
+        if nan_count > 0 {
+            let filled = fill::fill_voids(grid_records, side, width as usize, height as usize);
+            debug_assert_eq!(filled, nan_count);
+            // Filled values are weighted means of valid ones, but f32 rounding can step just
+            // outside the valid range: take the range of what is stored.
+            (z_min, z_max) = fill::height_range(grid_records, side, width as usize, height as usize);
+        }
         fill::pad(grid_records, side, width as usize, height as usize);
         steps.fill = t.elapsed().as_secs_f64();
         cancel::check()?;

@@ -120,6 +120,19 @@ pub fn fill_voids(records: &mut [Record], side: usize, width: usize, height: usi
     filled
 }
 
+/// Minimum and maximum height over the window `[0, width) × [0, height)`.
+pub fn height_range(records: &[Record], side: usize, width: usize, height: usize) -> (f64, f64) {
+    records
+        .par_chunks(side)
+        .take(height)
+        .map(|row| {
+            row[..width]
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), r| (lo.min(r.z as f64), hi.max(r.z as f64)))
+        })
+        .reduce(|| (f64::INFINITY, f64::NEG_INFINITY), |a, b| (a.0.min(b.0), a.1.max(b.1)))
+}
+
 /// Replicates the window's last column eastward and its last row northward to fill the grid.
 pub fn pad(records: &mut [Record], side: usize, width: usize, height: usize) {
     records.par_chunks_mut(side).take(height).for_each(|row| {

@@ -79,7 +79,12 @@ fn height(seed: u64, size: u32, octaves: u32, relief_m: f32, x: u32, y: u32) -> 
     let mut sum = 0.0f32;
     let mut norm = 0.0f32;
     for o in 0..octaves {
-        sum += amp * value_noise(seed.wrapping_add(o as u64 * 0x632B_E59B_D9B4_E019), x as f32 * f, y as f32 * f);
+        sum += amp
+            * value_noise(
+                seed.wrapping_add((o as u64).wrapping_mul(0x632B_E59B_D9B4_E019)),
+                x as f32 * f,
+                y as f32 * f,
+            );
         norm += amp;
         amp *= 0.5;
         f *= 2.0;
