@@ -98,7 +98,7 @@ pub struct ConvertReport {
 
 /// A writable mapping of a fresh file, used for the scratch grid and the output.
 struct MappedFile {
-    file: File,
+    _file: File, // held for the mapping's lifetime
     map: MmapMut,
 }
 
@@ -108,7 +108,7 @@ impl MappedFile {
         // SAFETY: the file was just created by this process (a temporary or unlinked file nobody
         // else knows of) and sized above; it is mapped once and lives as long as the map.
         let map = unsafe { MmapMut::map_mut(&file) }.at(path)?;
-        Ok(MappedFile { file, map })
+        Ok(MappedFile { _file: file, map })
     }
 
     fn records_mut(&mut self, offset: usize, count: usize) -> &mut [Record] {
@@ -239,9 +239,17 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
     let vertices = grid.vertices() as usize;
     let payload_bytes = layout.records() * RECORD_BYTES as u64;
     let out_tmp = temp_in(&out_dir, output)?;
-    let mut out = MappedFile::create(out_tmp.reopen().at(output)?, PAYLOAD_OFFSET + payload_bytes, output)?;
-
     let row_major = opts.layout == LayoutKind::RowMajor;
+    // Row-major: the output mapping doubles as the scratch grid. Other layouts: the output is
+    // written sequentially with positioned writes (no page faults, no zero-filling of fresh
+    // pages), and blocks of unused index slots are left as holes.
+    let out_file = out_tmp.reopen().at(output)?;
+    let mut out_map = if row_major {
+        Some(MappedFile::create(out_file.try_clone().at(output)?, PAYLOAD_OFFSET + payload_bytes, output)?)
+    } else {
+        out_file.set_len(PAYLOAD_OFFSET + payload_bytes).at(output)?;
+        None
+    };
     let mut scratch = if row_major {
         None
     } else {
@@ -255,9 +263,10 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
     let bar = opts.progress.bar("read", width as u64 * height as u64, "samples");
     let (mut nan_count, mut z_min, mut z_max) = (0u64, f64::INFINITY, f64::NEG_INFINITY);
     {
-        let grid_records: &mut [Record] = match scratch.as_mut() {
-            Some(s) => s.records_mut(0, vertices),
-            None => out.records_mut(PAYLOAD_OFFSET as usize, vertices),
+        let grid_records: &mut [Record] = match (scratch.as_mut(), out_map.as_mut()) {
+            (Some(s), _) => s.records_mut(0, vertices),
+            (None, Some(o)) => o.records_mut(PAYLOAD_OFFSET as usize, vertices),
+            (None, None) => unreachable!("row-major maps its output"),
         };
         let (z_scale, z_offset) = (opts.z_scale, opts.z_offset);
         // Readers are mostly sequential; fault the grid's pages in on the other core meanwhile
@@ -324,22 +333,23 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
         steps.bounds = t.elapsed().as_secs_f64();
     }
 
-    // 4. Gather into the layout's order (unused slots stay zero from the sparse file).
+    // 4. Gather into the layout's order, checksumming block by block.
     let t = Instant::now();
-    if let Some(s) = scratch.as_mut() {
+    let payload_checksum = if let Some(s) = scratch.as_mut() {
         let grid_records: &[Record] = s.records_mut(0, vertices);
-        let records = layout.records() as usize;
-        let bar = opts.progress.bar("layout", records as u64, "records");
-        let dst = out.records_mut(PAYLOAD_OFFSET as usize, records);
-        gather(&layout, grid_records, side, dst, &|k| bar.inc(k))?;
+        let bar = opts.progress.bar("layout", layout.records(), "records");
+        let hashes = gather(&layout, grid_records, side, &out_file, output, &|k| bar.inc(k))?;
         bar.finish_and_clear();
-    }
+        format::combine_block_hashes(&hashes)
+    } else {
+        let map = &out_map.as_ref().expect("row-major maps its output").map;
+        format::payload_checksum(&map[PAYLOAD_OFFSET as usize..])
+    };
     drop(scratch);
     steps.layout = t.elapsed().as_secs_f64();
 
-    // 5. Checksum, header, sync, rename.
+    // 5. Header, sync, rename.
     let t = Instant::now();
-    let payload_checksum = format::payload_checksum(&out.map[PAYLOAD_OFFSET as usize..]);
     let header = Header {
         version: format::VERSION,
         layout: layout.kind(),
@@ -363,11 +373,16 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
         source_spacing_deg: spacing_deg,
         payload_checksum,
     };
-    out.map[..format::HEADER_BYTES].copy_from_slice(&header.encode());
     cancel::check()?;
-    out.map.flush().at(output)?;
-    out.file.sync_all().at(output)?;
-    drop(out);
+    if let Some(o) = out_map.take() {
+        o.map.flush().at(output)?;
+    }
+    {
+        use std::os::unix::fs::FileExt;
+        out_file.write_all_at(&header.encode(), 0).at(output)?;
+    }
+    out_file.sync_all().at(output)?;
+    drop(out_file);
     out_tmp.persist(output).map_err(|e| Error::io(output, e.error))?;
     if let Ok(dir) = File::open(&out_dir) {
         let _ = dir.sync_all(); // make the rename durable where the platform allows
@@ -398,37 +413,61 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
     })
 }
 
-/// Writes `dst[i] = grid[coords(i)]` for every used slot, in parallel chunks of the output.
+/// Writes the payload in layout order: record `i` = `grid[coords(i)]` for every used slot, zero
+/// otherwise, in parallel blocks of [`format::CHECKSUM_BLOCK_BYTES`] with positioned writes.
+/// Returns the blocks' hashes in order. Blocks with no used slot are not written (holes read as
+/// zeros).
 fn gather(
     layout: &AnyLayout,
     grid: &[Record],
     side: usize,
-    dst: &mut [Record],
+    out: &File,
+    output: &Path,
     progress: &(dyn Fn(u64) + Sync),
-) -> Result<()> {
+) -> Result<Vec<u64>> {
     struct Gather<'a> {
         grid: &'a [Record],
         side: usize,
-        dst: &'a mut [Record],
+        out: &'a File,
+        output: &'a Path,
         progress: &'a (dyn Fn(u64) + Sync),
     }
     impl crate::layout::LayoutVisitor for Gather<'_> {
-        type Output = Result<()>;
-        fn visit<L: Layout>(self, layout: &L) -> Result<()> {
-            const CHUNK: usize = 1 << 16;
+        type Output = Result<Vec<u64>>;
+        fn visit<L: Layout>(self, layout: &L) -> Result<Vec<u64>> {
+            use std::os::unix::fs::FileExt;
+            let per_block = format::CHECKSUM_BLOCK_BYTES / RECORD_BYTES as usize;
+            let records = layout.records() as usize;
             let (grid, side) = (self.grid, self.side);
-            self.dst.par_chunks_mut(CHUNK).enumerate().try_for_each(|(c, chunk)| {
-                cancel::check()?;
-                let base = (c * CHUNK) as u64;
-                for (k, r) in chunk.iter_mut().enumerate() {
-                    if let Some((x, y)) = layout.coords(base + k as u64) {
-                        *r = grid[y as usize * side + x as usize];
-                    }
-                }
-                (self.progress)(chunk.len() as u64);
-                Ok(())
-            })
+            (0..records.div_ceil(per_block))
+                .into_par_iter()
+                .map_init(
+                    || vec![Record::default(); per_block],
+                    |buf, b| {
+                        cancel::check()?;
+                        let first = b * per_block;
+                        let buf = &mut buf[..per_block.min(records - first)];
+                        let mut used = false;
+                        for (k, r) in buf.iter_mut().enumerate() {
+                            *r = match layout.coords((first + k) as u64) {
+                                Some((x, y)) => {
+                                    used = true;
+                                    grid[y as usize * side + x as usize]
+                                }
+                                None => Record::default(),
+                            };
+                        }
+                        let bytes: &[u8] = bytemuck::cast_slice(buf);
+                        if used {
+                            let at = PAYLOAD_OFFSET + (first * RECORD_BYTES as usize) as u64;
+                            self.out.write_all_at(bytes, at).at(self.output)?;
+                        }
+                        (self.progress)(buf.len() as u64);
+                        Ok(format::block_hash(bytes))
+                    },
+                )
+                .collect()
         }
     }
-    layout.visit(Gather { grid, side, dst, progress })
+    layout.visit(Gather { grid, side, out, output, progress })
 }

@@ -27,7 +27,7 @@
 //!    152    8  nodata samples filled (u64)
 //!    160   24  source centre latitude and post spacing x, y in degrees (f64; NaN if projected)
 //!    184   56  reserved (0)
-//!    240    8  payload checksum: XXH3-64 of the payload bytes
+//!    240    8  payload checksum: XXH3-64 over the XXH3-64s of 786,432-byte payload blocks
 //!    248    8  header checksum: XXH3-64 of bytes 0..248
 //! ```
 //! Records in unused slots of the index space are all zero bytes. The header checksum is verified
@@ -354,9 +354,28 @@ impl TerrainFile {
     }
 }
 
-/// The payload checksum (XXH3-64 over all record bytes).
+/// The payload is checksummed in blocks of this many bytes (65,536 records of 12 bytes), so the
+/// checksum can be computed in parallel, and block by block while the payload is written.
+pub const CHECKSUM_BLOCK_BYTES: usize = 65_536 * RECORD_BYTES as usize;
+
+/// Hash of one checksum block.
+pub fn block_hash(block: &[u8]) -> u64 {
+    xxhash_rust::xxh3::xxh3_64(block)
+}
+
+/// Combines per-block hashes (in block order) into the payload checksum: XXH3-64 of their
+/// little-endian bytes.
+pub fn combine_block_hashes(hashes: &[u64]) -> u64 {
+    let bytes: Vec<u8> = hashes.iter().flat_map(|h| h.to_le_bytes()).collect();
+    xxhash_rust::xxh3::xxh3_64(&bytes)
+}
+
+/// The payload checksum: XXH3-64 of each [`CHECKSUM_BLOCK_BYTES`] block (the last may be
+/// shorter), combined with [`combine_block_hashes`]. Computed in parallel.
 pub fn payload_checksum(payload: &[u8]) -> u64 {
-    xxhash_rust::xxh3::xxh3_64(payload)
+    use rayon::prelude::*;
+    let hashes: Vec<u64> = payload.par_chunks(CHECKSUM_BLOCK_BYTES).map(block_hash).collect();
+    combine_block_hashes(&hashes)
 }
 
 #[cfg(test)]
