@@ -34,23 +34,24 @@ fn bench(c: &mut Criterion) {
     g.sample_size(10);
     g.throughput(Throughput::Elements(n));
     g.bench_function(BenchmarkId::new("bounds", grid.size()), |b| {
-        let mut recs = base.clone();
-        b.iter(|| compute_bounds(grid, [10.0, 10.0], &mut recs, &|_| {}, &|| Ok(())).unwrap())
+        let z: Vec<f32> = base.iter().map(|r| r.z).collect();
+        let mut bounds = vec![[0.0f32; 2]; z.len()];
+        b.iter(|| compute_bounds(grid, [10.0, 10.0], &z, &mut bounds, &|_| {}, &|| Ok(())).unwrap())
     });
     let side = grid.size() as usize;
     g.bench_function(BenchmarkId::new("fill_10pct_void", grid.size()), |b| {
         b.iter_batched_ref(
             || {
-                let mut r = base.clone();
-                for (i, rec) in r.iter_mut().enumerate() {
+                let mut z: Vec<f32> = base.iter().map(|r| r.z).collect();
+                for (i, v) in z.iter_mut().enumerate() {
                     let (x, y) = (i % side, i / side);
                     if (x / 8 + y / 8 * 7) % 10 == 3 {
-                        rec.z = f32::NAN;
+                        *v = f32::NAN;
                     }
                 }
-                r
+                (z, vec![[0.0f32; 2]; side * side])
             },
-            |r| fill::fill_voids(r, side, side, side),
+            |(z, acc)| fill::fill_voids(z, acc, side, side, side),
             criterion::BatchSize::LargeInput,
         )
     });

@@ -1,12 +1,14 @@
 //! DEM → terrain file conversion with bounded anonymous memory.
 //!
-//! Steps: stream the DEM into a memory-mapped row-major scratch grid of records (file-backed, so
+//! Steps: stream the DEM into a memory-mapped row-major grid of heights (file-backed scratch, so
 //! the kernel may page it out; anonymous memory stays O(row)), fill voids, pad to (2^n + 1)² by
-//! edge replication, compute nested errors and radii level by level, gather the records into the
-//! layout's order in a temporary output file, checksum, write the header, sync, and rename over
-//! the final name. For `row-major` the output itself serves as the scratch grid. An error or a
-//! Ctrl-C at any point drops the temporary files, so the final name holds either the old file or
-//! the complete new one.
+//! edge replication, compute nested errors and radii level by level into a second mapped grid,
+//! then write the records in the layout's order into a temporary output file with positioned
+//! writes (checksumming block by block), write the header, sync, and rename over the final name.
+//! Heights and bounds live in separate scratch grids so that each scratch page is dirtied once:
+//! re-dirtying pages the kernel has already written back doubled the I/O on large grids. An error
+//! or a Ctrl-C at any point drops the temporary files, so the final name holds either the old file
+//! or the complete new one.
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -96,7 +98,7 @@ pub struct ConvertReport {
     pub peak_rss_anon_bytes: u64,
 }
 
-/// A writable mapping of a fresh file, used for the scratch grid and the output.
+/// A writable mapping of a fresh file (the scratch grids).
 struct MappedFile {
     _file: File, // held for the mapping's lifetime
     map: MmapMut,
@@ -111,8 +113,14 @@ impl MappedFile {
         Ok(MappedFile { _file: file, map })
     }
 
-    fn records_mut(&mut self, offset: usize, count: usize) -> &mut [Record] {
-        bytemuck::cast_slice_mut(&mut self.map[offset..offset + count * RECORD_BYTES as usize])
+    /// A fresh unlinked scratch file of `count` values of `T`, mapped.
+    fn scratch(dir: &Path, bytes: u64) -> Result<MappedFile> {
+        let file = tempfile::tempfile_in(dir).at(dir)?;
+        MappedFile::create(file, bytes, dir)
+    }
+
+    fn as_mut<T: bytemuck::Pod>(&mut self) -> &mut [T] {
+        bytemuck::cast_slice_mut(&mut self.map[..])
     }
 }
 
@@ -126,8 +134,8 @@ struct Prefault {
 }
 
 impl Prefault {
-    fn new(records: &mut [Record]) -> Self {
-        Prefault { addr: records.as_mut_ptr() as usize, len: std::mem::size_of_val(records), stop: false.into() }
+    fn new<T>(region: &mut [T]) -> Self {
+        Prefault { addr: region.as_mut_ptr() as usize, len: std::mem::size_of_val(region), stop: false.into() }
     }
 
     fn run(&self) {
@@ -239,39 +247,28 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
     let vertices = grid.vertices() as usize;
     let payload_bytes = layout.records() * RECORD_BYTES as u64;
     let out_tmp = temp_in(&out_dir, output)?;
-    let row_major = opts.layout == LayoutKind::RowMajor;
-    // Row-major: the output mapping doubles as the scratch grid. Other layouts: the output is
-    // written sequentially with positioned writes (no page faults, no zero-filling of fresh
-    // pages), and blocks of unused index slots are left as holes.
+    // The output is written once, sequentially, with positioned writes (no page faults, no
+    // zero-filling of fresh pages); blocks of unused index slots are left as holes.
     let out_file = out_tmp.reopen().at(output)?;
-    let mut out_map = if row_major {
-        Some(MappedFile::create(out_file.try_clone().at(output)?, PAYLOAD_OFFSET + payload_bytes, output)?)
-    } else {
-        out_file.set_len(PAYLOAD_OFFSET + payload_bytes).at(output)?;
-        None
-    };
-    let mut scratch = if row_major {
-        None
-    } else {
-        let dir = opts.scratch_dir.clone().unwrap_or_else(|| out_dir.clone());
-        let file = tempfile::tempfile_in(&dir).at(&dir)?;
-        Some(MappedFile::create(file, vertices as u64 * RECORD_BYTES as u64, &dir)?)
-    };
+    out_file.set_len(PAYLOAD_OFFSET + payload_bytes).at(output)?;
+    // Scratch: heights and bounds in separate row-major grids, so each scratch page is written
+    // once (heights while reading, bounds while preprocessing) and never re-dirtied after the
+    // kernel has written it back.
+    let scratch_dir = opts.scratch_dir.clone().unwrap_or_else(|| out_dir.clone());
+    let mut z_map = MappedFile::scratch(&scratch_dir, vertices as u64 * 4)?;
+    let mut bounds_map = MappedFile::scratch(&scratch_dir, vertices as u64 * 8)?;
+    let z_grid: &mut [f32] = z_map.as_mut();
+    let bounds_grid: &mut [[f32; 2]] = bounds_map.as_mut();
 
     // 1. Read the DEM into the row-major grid (grid row y = height − 1 − image row).
     let t = Instant::now();
     let bar = opts.progress.bar("read", width as u64 * height as u64, "samples");
     let (mut nan_count, mut z_min, mut z_max) = (0u64, f64::INFINITY, f64::NEG_INFINITY);
     {
-        let grid_records: &mut [Record] = match (scratch.as_mut(), out_map.as_mut()) {
-            (Some(s), _) => s.records_mut(0, vertices),
-            (None, Some(o)) => o.records_mut(PAYLOAD_OFFSET as usize, vertices),
-            (None, None) => unreachable!("row-major maps its output"),
-        };
         let (z_scale, z_offset) = (opts.z_scale, opts.z_offset);
         // Readers are mostly sequential; fault the grid's pages in on the other core meanwhile
         // (the kernel zeroes each fresh page-cache page, a large share of this step's cost).
-        let prefault = Prefault::new(grid_records);
+        let prefault = Prefault::new(z_grid);
         std::thread::scope(|scope| -> Result<()> {
             scope.spawn(|| prefault.run());
             let result = source.read(&mut |run: Run<'_>| {
@@ -287,17 +284,17 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
                     ));
                 }
                 let y = (height - 1 - run.row) as usize;
-                let dst = &mut grid_records[y * side + run.x0 as usize..y * side + end as usize];
+                let dst = &mut z_grid[y * side + run.x0 as usize..y * side + end as usize];
                 for (r, &v) in dst.iter_mut().zip(run.values) {
                     let z = v * z_scale + z_offset;
                     if z.is_finite() {
                         // The range is that of the stored (f32) heights.
-                        r.z = z as f32;
-                        z_min = z_min.min(r.z as f64);
-                        z_max = z_max.max(r.z as f64);
+                        *r = z as f32;
+                        z_min = z_min.min(*r as f64);
+                        z_max = z_max.max(*r as f64);
                     } else {
                         nan_count += 1;
-                        r.z = f32::NAN;
+                        *r = f32::NAN;
                     }
                 }
                 bar.inc(run.values.len() as u64);
@@ -315,37 +312,31 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
         // 2. Fill voids and pad.
         let t = Instant::now();
         if nan_count > 0 {
-            let filled = fill::fill_voids(grid_records, side, width as usize, height as usize);
+            let filled = fill::fill_voids(z_grid, bounds_grid, side, width as usize, height as usize);
             debug_assert_eq!(filled, nan_count);
             // Filled values are weighted means of valid ones, but f32 rounding can step just
             // outside the valid range: take the range of what is stored.
-            (z_min, z_max) = fill::height_range(grid_records, side, width as usize, height as usize);
+            (z_min, z_max) = fill::height_range(z_grid, side, width as usize, height as usize);
         }
-        fill::pad(grid_records, side, width as usize, height as usize);
+        fill::pad(z_grid, side, width as usize, height as usize);
         steps.fill = t.elapsed().as_secs_f64();
         cancel::check()?;
 
         // 3. Nested errors and radii.
         let t = Instant::now();
         let bar = opts.progress.bar("bounds", vertices as u64, "vertices");
-        preprocess::compute_bounds(grid, spacing_m, grid_records, &|k| bar.inc(k), &cancel::check)?;
+        preprocess::compute_bounds(grid, spacing_m, z_grid, bounds_grid, &|k| bar.inc(k), &cancel::check)?;
         bar.finish_and_clear();
         steps.bounds = t.elapsed().as_secs_f64();
     }
 
     // 4. Gather into the layout's order, checksumming block by block.
     let t = Instant::now();
-    let payload_checksum = if let Some(s) = scratch.as_mut() {
-        let grid_records: &[Record] = s.records_mut(0, vertices);
-        let bar = opts.progress.bar("layout", layout.records(), "records");
-        let hashes = gather(&layout, grid_records, side, &out_file, output, &|k| bar.inc(k))?;
-        bar.finish_and_clear();
-        format::combine_block_hashes(&hashes)
-    } else {
-        let map = &out_map.as_ref().expect("row-major maps its output").map;
-        format::payload_checksum(&map[PAYLOAD_OFFSET as usize..])
-    };
-    drop(scratch);
+    let bar = opts.progress.bar("layout", layout.records(), "records");
+    let hashes = gather(&layout, z_grid, bounds_grid, side, &out_file, output, &|k| bar.inc(k))?;
+    bar.finish_and_clear();
+    let payload_checksum = format::combine_block_hashes(&hashes);
+    drop((z_map, bounds_map));
     steps.layout = t.elapsed().as_secs_f64();
 
     // 5. Header, sync, rename.
@@ -374,9 +365,6 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
         payload_checksum,
     };
     cancel::check()?;
-    if let Some(o) = out_map.take() {
-        o.map.flush().at(output)?;
-    }
     {
         use std::os::unix::fs::FileExt;
         out_file.write_all_at(&header.encode(), 0).at(output)?;
@@ -413,20 +401,22 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
     })
 }
 
-/// Writes the payload in layout order: record `i` = `grid[coords(i)]` for every used slot, zero
+/// Writes the payload in layout order: record `i` = the grid's `coords(i)` post, zero
 /// otherwise, in parallel blocks of [`format::CHECKSUM_BLOCK_BYTES`] with positioned writes.
 /// Returns the blocks' hashes in order. Blocks with no used slot are not written (holes read as
 /// zeros).
 fn gather(
     layout: &AnyLayout,
-    grid: &[Record],
+    z: &[f32],
+    bounds: &[[f32; 2]],
     side: usize,
     out: &File,
     output: &Path,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<u64>> {
     struct Gather<'a> {
-        grid: &'a [Record],
+        z: &'a [f32],
+        bounds: &'a [[f32; 2]],
         side: usize,
         out: &'a File,
         output: &'a Path,
@@ -438,7 +428,7 @@ fn gather(
             use std::os::unix::fs::FileExt;
             let per_block = format::CHECKSUM_BLOCK_BYTES / RECORD_BYTES as usize;
             let records = layout.records() as usize;
-            let (grid, side) = (self.grid, self.side);
+            let (z, bounds, side) = (self.z, self.bounds, self.side);
             (0..records.div_ceil(per_block))
                 .into_par_iter()
                 .map_init(
@@ -452,7 +442,9 @@ fn gather(
                             *r = match layout.coords((first + k) as u64) {
                                 Some((x, y)) => {
                                     used = true;
-                                    grid[y as usize * side + x as usize]
+                                    let i = y as usize * side + x as usize;
+                                    let [error, radius] = bounds[i];
+                                    Record { z: z[i], error, radius }
                                 }
                                 None => Record::default(),
                             };
@@ -469,5 +461,5 @@ fn gather(
                 .collect()
         }
     }
-    layout.visit(Gather { grid, side, out, output, progress })
+    layout.visit(Gather { z, bounds, side, out, output, progress })
 }

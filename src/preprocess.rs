@@ -43,13 +43,14 @@ pub fn raw_error(z: f32, za: f32, zb: f32) -> f64 {
     (z as f64 - 0.5 * (za as f64 + zb as f64)).abs()
 }
 
-/// Row-major grid of records shared across threads during one level.
+/// Row-major heights and bounds (error, radius) shared across threads during one level.
 ///
 /// Within a level every vertex is written by exactly one task (tasks own whole rows), and the
-/// records read are those of finer levels (children, finished) and heights (not written in this
-/// phase) — never a record of the level being written. That is what makes the raw accesses sound.
+/// bounds read are those of finer levels (children, finished); heights are only read. That is what
+/// makes the raw accesses sound.
 struct SharedRows {
-    ptr: *mut Record,
+    z: *const f32,
+    bounds: *mut [f32; 2],
     side: usize,
 }
 unsafe impl Send for SharedRows {}
@@ -58,17 +59,15 @@ unsafe impl Sync for SharedRows {}
 impl SharedRows {
     #[inline(always)]
     fn get(&self, x: u32, y: u32) -> Record {
+        let i = y as usize * self.side + x as usize;
         // SAFETY: in bounds (callers pass grid positions); see the type's note on aliasing.
-        unsafe { self.ptr.add(y as usize * self.side + x as usize).read() }
+        let (z, [error, radius]) = unsafe { (self.z.add(i).read(), self.bounds.add(i).read()) };
+        Record { z, error, radius }
     }
     #[inline(always)]
     fn set_bounds(&self, x: u32, y: u32, error: f32, radius: f32) {
-        // SAFETY: as above; only the error and radius fields are written.
-        unsafe {
-            let p = self.ptr.add(y as usize * self.side + x as usize);
-            std::ptr::addr_of_mut!((*p).error).write(error);
-            std::ptr::addr_of_mut!((*p).radius).write(radius);
-        }
+        // SAFETY: as above.
+        unsafe { self.bounds.add(y as usize * self.side + x as usize).write([error, radius]) }
     }
 }
 
@@ -175,18 +174,21 @@ fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: 
     count
 }
 
-/// Computes error and radius for every vertex of a row-major `grid` whose heights are set.
+/// Computes error and radius (`bounds[i] = [error, radius]`) for every vertex of a row-major
+/// `grid` from its heights `z`. Heights and bounds live in separate arrays so that, during
+/// conversion, the mapped height pages are written once and only read afterwards.
 /// `progress` is called with the number of vertices finished after each row.
 pub fn compute_bounds(
     grid: Grid,
     spacing_m: [f64; 2],
-    records: &mut [Record],
+    z: &[f32],
+    bounds: &mut [[f32; 2]],
     progress: &(dyn Fn(u64) + Sync),
     check_cancel: &(dyn Fn() -> Result<()> + Sync),
 ) -> Result<()> {
     let side = grid.size();
-    assert_eq!(records.len() as u64, grid.vertices(), "row-major grid expected");
-    let shared = SharedRows { ptr: records.as_mut_ptr(), side: side as usize };
+    assert!(z.len() as u64 == grid.vertices() && bounds.len() == z.len(), "row-major grid expected");
+    let shared = SharedRows { z: z.as_ptr(), bounds: bounds.as_mut_ptr(), side: side as usize };
     for level in 1..=grid.levels() {
         let step = 1u32 << ((level - 1) / 2);
         // Edge midpoints lie on every row that is a multiple of step; square centres on odd
@@ -263,7 +265,12 @@ mod tests {
     }
 
     fn run(g: Grid, spacing: [f64; 2], recs: &mut [Record]) {
-        compute_bounds(g, spacing, recs, &|_| {}, &|| Ok(())).unwrap();
+        let z: Vec<f32> = recs.iter().map(|r| r.z).collect();
+        let mut bounds = vec![[0.0f32; 2]; z.len()];
+        compute_bounds(g, spacing, &z, &mut bounds, &|_| {}, &|| Ok(())).unwrap();
+        for (r, [e, rad]) in recs.iter_mut().zip(bounds) {
+            (r.error, r.radius) = (e, rad);
+        }
     }
 
     #[test]
