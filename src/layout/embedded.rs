@@ -29,7 +29,9 @@
 //! refinement levels `2(n − k) + 1` and `2(n − k) + 2`, so the file is coarse to fine up to that
 //! pairing.
 
-use super::interleaved::{black_coords, corner_coords, corner_index, level_offset, white_coords};
+use super::interleaved::{
+    black_coords, corner_coords, corner_index, level_offset, quadtree_split_children, white_coords,
+};
 use super::{morton, Layout, LayoutKind, Vertex};
 use crate::hierarchy::{split_children, Grid};
 
@@ -109,14 +111,10 @@ impl Layout for Embedded {
 
     #[inline]
     fn split_children(&self, apex: Vertex, split: Vertex) -> [Vertex; 2] {
-        let (i, j) = (apex.index, split.index);
-        if i <= 4 {
+        if apex.index <= 4 {
             return self.root_split_children(apex, split);
         }
-        let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
-        let base = 4 * i - 11;
-        let s = 2 * i + j;
-        [Vertex { x: l.0, y: l.1, index: base + ((s + 2) & 3) }, Vertex { x: r.0, y: r.1, index: base + ((s + 3) & 3) }]
+        quadtree_split_children(apex, split, 11)
     }
 }
 

@@ -160,15 +160,23 @@ impl Layout for Interleaved {
 
     #[inline]
     fn split_children(&self, apex: Vertex, split: Vertex) -> [Vertex; 2] {
-        let (i, j) = (apex.index, split.index);
-        if i < 4 {
+        if apex.index < 4 {
             return self.corner_split_children(apex, split);
         }
-        let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
-        let base = 4 * i - 7;
-        let s = 2 * i + j;
-        [Vertex { x: l.0, y: l.1, index: base + ((s + 2) & 3) }, Vertex { x: r.0, y: r.1, index: base + ((s + 3) & 3) }]
+        quadtree_split_children(apex, split, 7)
     }
+}
+
+/// SOAR's child rule, shared by the quadtree layouts in which child `k` of node `p` sits at
+/// `4p − back + k` (`back` = 7 interleaved, 11 embedded): the two DAG children of `split` on
+/// `apex`'s side are `4i − back + ((2i + j + 2) & 3)` and `… + ((2i + j + 3) & 3)`.
+#[inline(always)]
+pub(crate) fn quadtree_split_children(apex: Vertex, split: Vertex, back: u64) -> [Vertex; 2] {
+    let (i, j) = (apex.index, split.index);
+    let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
+    let base = 4 * i - back;
+    let s = 2 * i + j;
+    [Vertex { x: l.0, y: l.1, index: base + ((s + 2) & 3) }, Vertex { x: r.0, y: r.1, index: base + ((s + 3) & 3) }]
 }
 
 impl Interleaved {
