@@ -113,7 +113,8 @@ impl MappedFile {
         Ok(MappedFile { _file: file, map })
     }
 
-    /// A fresh unlinked scratch file of `count` values of `T`, mapped.
+    /// A fresh, already unlinked scratch file of `bytes` bytes in `dir`, mapped (it vanishes with the
+    /// process, whatever the exit).
     fn scratch(dir: &Path, bytes: u64) -> Result<MappedFile> {
         let file = tempfile::tempfile_in(dir).at(dir)?;
         MappedFile::create(file, bytes, dir)
