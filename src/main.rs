@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::bail;
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::builder::{PossibleValuesParser, TypedValueParser};
+use clap::{Parser, Subcommand};
 
 use relief::convert::{convert, ConvertOptions};
 use relief::dem::DemFormat;
@@ -22,50 +23,16 @@ struct Cli {
     command: Command,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
-enum LayoutArg {
-    RowMajor,
-    Tiled,
-    Interleaved,
-    Embedded,
-    Hz,
+/// `--layout` values: the library's layout names, listed in `--help`.
+fn layout_parser() -> impl clap::builder::TypedValueParser<Value = LayoutKind> {
+    PossibleValuesParser::new(LayoutKind::ALL.map(LayoutKind::name))
+        .map(|name| LayoutKind::from_name(&name).expect("a possible value"))
 }
 
-impl From<LayoutArg> for LayoutKind {
-    fn from(a: LayoutArg) -> Self {
-        match a {
-            LayoutArg::RowMajor => LayoutKind::RowMajor,
-            LayoutArg::Tiled => LayoutKind::Tiled,
-            LayoutArg::Interleaved => LayoutKind::Interleaved,
-            LayoutArg::Embedded => LayoutKind::Embedded,
-            LayoutArg::Hz => LayoutKind::Hz,
-        }
-    }
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-enum FormatArg {
-    Geotiff,
-    Png,
-    TerrainRgb,
-    Terrarium,
-    Exr,
-    Hgt,
-    Asc,
-}
-
-impl From<FormatArg> for DemFormat {
-    fn from(a: FormatArg) -> Self {
-        match a {
-            FormatArg::Geotiff => DemFormat::GeoTiff,
-            FormatArg::Png => DemFormat::Png,
-            FormatArg::TerrainRgb => DemFormat::TerrainRgb,
-            FormatArg::Terrarium => DemFormat::Terrarium,
-            FormatArg::Exr => DemFormat::Exr,
-            FormatArg::Hgt => DemFormat::Hgt,
-            FormatArg::Asc => DemFormat::Asc,
-        }
-    }
+/// `--format` values: the library's DEM format names, listed in `--help`.
+fn format_parser() -> impl clap::builder::TypedValueParser<Value = DemFormat> {
+    PossibleValuesParser::new(DemFormat::ALL.map(DemFormat::name))
+        .map(|name| DemFormat::from_name(&name).expect("a possible value"))
 }
 
 #[derive(Subcommand)]
@@ -82,8 +49,8 @@ enum Command {
         /// Terrain file to write (replaced atomically if it exists).
         output: PathBuf,
         /// Record order in the file.
-        #[arg(long, value_enum, default_value = "interleaved")]
-        layout: LayoutArg,
+        #[arg(long, value_parser = layout_parser(), default_value = "interleaved")]
+        layout: LayoutKind,
         /// Tile side in posts for --layout tiled (a power of two); default: the largest tile that
         /// fits one 4 KiB page (16 for 12-byte records).
         #[arg(long, value_name = "N")]
@@ -99,8 +66,8 @@ enum Command {
         #[arg(long, value_name = "M", default_value_t = 0.0)]
         z_offset: f64,
         /// Force the input format instead of detecting it.
-        #[arg(long, value_enum)]
-        format: Option<FormatArg>,
+        #[arg(long, value_parser = format_parser())]
+        format: Option<DemFormat>,
         /// Directory for the scratch grid (default: the output's directory). Needs about
         /// 12 bytes per post of the padded grid.
         #[arg(long, value_name = "DIR")]
@@ -176,12 +143,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             json,
             quiet,
         } => {
-            let mut opts = ConvertOptions::new(layout.into());
+            let mut opts = ConvertOptions::new(layout);
             opts.tile = tile;
             opts.spacing_m = spacing.as_deref().map(parse_spacing).transpose()?;
             opts.z_scale = z_scale;
             opts.z_offset = z_offset;
-            opts.format = format.map(Into::into);
+            opts.format = format;
             opts.scratch_dir = scratch_dir;
             opts.progress = progress(quiet);
             let r = convert(&input, &output, &opts)?;
