@@ -13,11 +13,17 @@ pub mod hierarchy;
 pub mod layout;
 
 pub use error::{Error, Result};
+pub mod camera;
 pub mod cancel;
 pub mod convert;
 pub mod fill;
 pub mod format;
 pub mod inspect;
 pub mod mem;
+pub mod mesh_check;
+pub mod metric;
+pub mod minimal;
 pub mod preprocess;
 pub mod progress;
+pub mod refine;
+pub mod refine_report;

@@ -9,12 +9,17 @@ use anyhow::bail;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Parser, Subcommand};
 
+use glam::DVec3;
+use relief::camera::Camera;
 use relief::convert::{convert, ConvertOptions};
 use relief::dem::DemFormat;
 use relief::format::TerrainFile;
 use relief::inspect;
 use relief::layout::LayoutKind;
+use relief::metric::MetricKind;
 use relief::progress::Progress;
+use relief::refine::RefineOptions;
+use relief::refine_report::{refine_report, ReportOptions};
 
 #[derive(Parser)]
 #[command(name = "relief", version, about = "Terrain files for out-of-core, view-dependent rendering of height fields")]
@@ -97,6 +102,74 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// Refine one view into a single triangle strip and report its size and speed.
+    ///
+    /// World coordinates are metres with the origin at the grid's south-west corner, x east, y
+    /// north, z up (the extent is in `relief info`). A vertex is refined while its nested error
+    /// projects to more than --tolerance pixels on a --width-pixel-wide image.
+    Refine {
+        file: PathBuf,
+        /// Eye position "X,Y,Z", metres.
+        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+        eye: String,
+        /// Point looked at "X,Y,Z", metres.
+        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+        look: String,
+        /// Up direction "X,Y,Z".
+        #[arg(long, value_name = "X,Y,Z", default_value = "0,0,1", allow_hyphen_values = true)]
+        up: String,
+        /// Screen-space error tolerance τ, pixels.
+        #[arg(long, value_name = "PX", default_value_t = 1.0)]
+        tolerance: f64,
+        /// Image width, pixels.
+        #[arg(long, value_name = "W", default_value_t = 1920)]
+        width: u32,
+        /// Image height, pixels.
+        #[arg(long, value_name = "H", default_value_t = 1080)]
+        height: u32,
+        /// Horizontal field of view, degrees.
+        #[arg(long, value_name = "DEG", default_value_t = 60.0)]
+        fov: f64,
+        /// Screen-space error metric.
+        #[arg(long, value_parser = metric_parser(), default_value = "isotropic")]
+        metric: MetricKind,
+        /// Do not cull to the view frustum (refine the whole terrain for the eye).
+        #[arg(long)]
+        no_cull: bool,
+        /// Geomorphing: blend vertices in between the distances where their error projects to τ
+        /// and to RATIO·τ (RATIO > 1).
+        #[arg(long, value_name = "RATIO")]
+        geomorph: Option<f64>,
+        /// Refinement threads (1: no pool).
+        #[arg(long, value_name = "N", default_value_t = 1)]
+        threads: usize,
+        /// Prove the mesh conforming: edges, areas, windings, T-junctions.
+        #[arg(long)]
+        check: bool,
+        /// Compare with the minimal mesh for the same view and tolerance.
+        #[arg(long)]
+        compare_minimal: bool,
+        /// Refine this many times and report the median time.
+        #[arg(long, value_name = "N", default_value_t = 1)]
+        repeat: usize,
+        /// Print JSON on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// `--metric` values: the library's metric names.
+fn metric_parser() -> impl clap::builder::TypedValueParser<Value = MetricKind> {
+    PossibleValuesParser::new(MetricKind::ALL.map(MetricKind::name))
+        .map(|name| MetricKind::from_name(&name).expect("a possible value"))
+}
+
+fn parse_vec3(flag: &str, s: &str) -> anyhow::Result<DVec3> {
+    let nums: Result<Vec<f64>, _> = s.split(',').map(|p| p.trim().parse::<f64>()).collect();
+    match nums.ok().as_deref() {
+        Some(&[x, y, z]) if x.is_finite() && y.is_finite() && z.is_finite() => Ok(DVec3::new(x, y, z)),
+        _ => bail!("{flag}: expected three finite numbers X,Y,Z, got '{s}'"),
+    }
 }
 
 fn parse_spacing(s: &str) -> anyhow::Result<[f64; 2]> {
@@ -220,6 +293,75 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 i.payload_checksum
             );
             Ok(ExitCode::SUCCESS)
+        }
+        Command::Refine {
+            file,
+            eye,
+            look,
+            up,
+            tolerance,
+            width,
+            height,
+            fov,
+            metric,
+            no_cull,
+            geomorph,
+            threads,
+            check,
+            compare_minimal,
+            repeat,
+            json,
+        } => {
+            if !(tolerance > 0.0 && tolerance.is_finite()) {
+                bail!("--tolerance: expected a positive number of pixels, got {tolerance}");
+            }
+            if let Some(r) = geomorph {
+                if !(r > 1.0 && r.is_finite()) {
+                    bail!("--geomorph: expected a ratio greater than 1, got {r}");
+                }
+            }
+            if threads == 0 || repeat == 0 {
+                bail!("--threads and --repeat must be at least 1");
+            }
+            let camera = Camera::new(
+                parse_vec3("--eye", &eye)?,
+                parse_vec3("--look", &look)?,
+                parse_vec3("--up", &up)?,
+                fov,
+                width,
+                height,
+            )?;
+            let f = TerrainFile::open(&file)?;
+            let options = RefineOptions { tolerance_px: tolerance, metric, cull: !no_cull, morph_ratio: geomorph };
+            let report = ReportOptions { threads, repeat, check, compare_minimal };
+            let (r, _) = refine_report(&f, &camera, &options, &report)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                println!(
+                    "{}: {} triangles, strip {} ({} degenerate, {:.3} vertices/triangle), visited {}, culled {}",
+                    r.file, r.triangles, r.strip_len, r.degenerate, r.strip_vertices_per_triangle, r.visited, r.culled
+                );
+                println!(
+                    "refine {:.3} ms median of {} ({:.3} ms min), {:.1} M triangles/s, {} thread(s), layout {}",
+                    r.refine_ms, r.repeat, r.refine_ms_min, r.mtris_per_s, r.threads, r.layout
+                );
+                if let Some(c) = &r.check {
+                    println!(
+                        "check: {} ({} edge errors, {} winding errors, area {}, {} inactive vertices)",
+                        if c.crack_free { "crack-free" } else { "CRACKS" },
+                        c.edge_errors,
+                        c.winding_errors,
+                        if c.area_ok { "ok" } else { "wrong" },
+                        c.inactive_vertices
+                    );
+                }
+                if let (Some(m), Some(ratio)) = (r.minimal_triangles, r.ratio_to_minimal) {
+                    println!("minimal mesh: {m} triangles, ratio {ratio:.4}");
+                }
+            }
+            let failed = r.check.as_ref().is_some_and(|c| !c.crack_free || c.inactive_vertices > 0);
+            Ok(if failed { ExitCode::FAILURE } else { ExitCode::SUCCESS })
         }
         Command::Verify { file, json, quiet } => {
             let f = TerrainFile::open(&file)?;

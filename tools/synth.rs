@@ -42,6 +42,10 @@ struct Args {
     /// Height range in metres of the largest features.
     #[arg(long, default_value_t = 2500.0)]
     relief_m: f64,
+    /// Roughness as a Hurst exponent H: each octave (half the wavelength) has 2^-H of the
+    /// previous one's amplitude. 1.0 is smooth; real terrain is rougher, about 0.6 to 0.8.
+    #[arg(long, default_value_t = 1.0)]
+    hurst: f64,
     #[arg(long, value_enum, default_value = "tiff")]
     format: Format,
 }
@@ -73,7 +77,7 @@ fn value_noise(seed: u64, x: f32, y: f32) -> f32 {
 }
 
 /// Fractal Brownian motion with `octaves` octaves; the coarsest wavelength is the whole grid.
-fn height(seed: u64, size: u32, octaves: u32, relief_m: f32, x: u32, y: u32) -> f32 {
+fn height(seed: u64, size: u32, octaves: u32, relief_m: f32, persistence: f32, x: u32, y: u32) -> f32 {
     let mut f = 2.0 / size as f32;
     let mut amp = 1.0f32;
     let mut sum = 0.0f32;
@@ -86,7 +90,7 @@ fn height(seed: u64, size: u32, octaves: u32, relief_m: f32, x: u32, y: u32) -> 
                 y as f32 * f,
             );
         norm += amp;
-        amp *= 0.5;
+        amp *= persistence;
         f *= 2.0;
     }
     // Square the normalised sum for valleys that flatten and peaks that sharpen.
@@ -96,7 +100,7 @@ fn height(seed: u64, size: u32, octaves: u32, relief_m: f32, x: u32, y: u32) -> 
 
 fn row(args: &Args, octaves: u32, y: u32, out: &mut [f32]) {
     for (x, v) in out.iter_mut().enumerate() {
-        *v = height(args.seed, args.size, octaves, args.relief_m as f32, x as u32, y);
+        *v = height(args.seed, args.size, octaves, args.relief_m as f32, (-args.hurst).exp2() as f32, x as u32, y);
     }
 }
 
@@ -106,8 +110,8 @@ fn write_tiff<W: Write + Seek, K: TiffKind>(mut enc: TiffEncoder<W, K>, args: &A
     const ROWS: u32 = 16;
     image.rows_per_strip(ROWS)?;
     let desc = format!(
-        "relief SYNTHETIC fractal terrain: fBm value noise, seed {}, {} octaves, {} m relief",
-        args.seed, octaves, args.relief_m
+        "relief SYNTHETIC fractal terrain: fBm value noise, seed {}, {} octaves, {} m relief, Hurst {}",
+        args.seed, octaves, args.relief_m, args.hurst
     );
     image.encoder().write_tag(Tag::ImageDescription, desc.as_str())?;
     image.encoder().write_tag(Tag::ModelPixelScaleTag, &[args.spacing, args.spacing, 0.0][..])?;
@@ -160,6 +164,9 @@ fn main() -> Result<()> {
     let args = Args::parse();
     if args.size < 2 || args.spacing.is_nan() || args.spacing <= 0.0 {
         bail!("--size must be at least 2 and --spacing positive");
+    }
+    if !(args.hurst > 0.0 && args.hurst <= 2.0) {
+        bail!("--hurst must be in (0, 2], got {}", args.hurst);
     }
     let octaves = 32 - args.size.leading_zeros(); // down to about one post per wavelength
     let file = File::create(&args.out).with_context(|| format!("{}: cannot create", args.out.display()))?;

@@ -1,0 +1,137 @@
+//! A pinhole camera in world space and its view frustum.
+//!
+//! World space is metres with the origin at the grid's south-west corner, x east, y north, z up
+//! (as `relief info` reports extents). The frustum is kept as planes through the eye with inward
+//! unit normals, so a point's signed distance to a plane is `normal · (p − eye)`; refinement culls
+//! bounding spheres against them (`relief::refine`).
+
+use glam::DVec3;
+
+use crate::error::{Error, Result};
+
+/// Frustum planes: near (through the eye), left, right, bottom, top. No far plane: terrain is
+/// drawn to the horizon.
+pub const PLANES: usize = 5;
+
+/// A perspective camera: where it is, where it looks, and the image it makes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    pub eye_in_world: DVec3,
+    pub look_at_world: DVec3,
+    pub up_in_world: DVec3,
+    /// Horizontal field of view, degrees.
+    pub fov_x_deg: f64,
+    pub width_px: u32,
+    pub height_px: u32,
+}
+
+impl Camera {
+    /// Validates and builds a camera: finite coordinates, `look ≠ eye`, `up` not parallel to the
+    /// view direction, `0 < fov < 180`, non-empty image.
+    pub fn new(eye: DVec3, look: DVec3, up: DVec3, fov_x_deg: f64, width_px: u32, height_px: u32) -> Result<Camera> {
+        let bad = |m: String| Err(Error::InvalidArgument(m));
+        if !(eye.is_finite() && look.is_finite() && up.is_finite()) {
+            return bad("camera eye, look and up must be finite numbers".into());
+        }
+        let forward = look - eye;
+        if forward.length_squared() == 0.0 {
+            return bad(format!("camera look point equals the eye ({eye})"));
+        }
+        if up.length_squared() == 0.0 || forward.normalize().cross(up.normalize()).length() < 1e-9 {
+            return bad(format!("camera up {up} is parallel to the view direction {}", forward.normalize()));
+        }
+        if !(fov_x_deg > 0.0 && fov_x_deg < 180.0) {
+            return bad(format!("field of view must be between 0 and 180 degrees, got {fov_x_deg}"));
+        }
+        if width_px == 0 || height_px == 0 {
+            return bad(format!("image size must be at least 1 x 1 pixels, got {width_px} x {height_px}"));
+        }
+        Ok(Camera { eye_in_world: eye, look_at_world: look, up_in_world: up, fov_x_deg, width_px, height_px })
+    }
+
+    /// Unit view direction.
+    pub fn forward(&self) -> DVec3 {
+        (self.look_at_world - self.eye_in_world).normalize()
+    }
+
+    /// Orthonormal camera basis `(right, up, forward)`.
+    pub fn basis(&self) -> (DVec3, DVec3, DVec3) {
+        let f = self.forward();
+        let r = f.cross(self.up_in_world).normalize();
+        let u = r.cross(f);
+        (r, u, f)
+    }
+
+    /// Vertical field of view in degrees, from the horizontal one and the aspect ratio.
+    pub fn fov_y_deg(&self) -> f64 {
+        let tan_x = (self.fov_x_deg.to_radians() / 2.0).tan();
+        (2.0 * (tan_x * self.height_px as f64 / self.width_px as f64).atan()).to_degrees()
+    }
+
+    /// κ = w / (2 τ tan(φ/2)): an object-space error δ at distance d projects to δ·κ/d·τ pixels, so
+    /// it exceeds τ pixels exactly when κ δ > d.
+    pub fn kappa(&self, tolerance_px: f64) -> f64 {
+        self.width_px as f64 / (2.0 * tolerance_px * (self.fov_x_deg.to_radians() / 2.0).tan())
+    }
+
+    /// Inward unit normals of the frustum planes (see [`PLANES`]); every plane passes through the
+    /// eye, so a point is inside iff `normal · (p − eye) ≥ 0` for all of them.
+    pub fn frustum_normals(&self) -> [DVec3; PLANES] {
+        let (r, u, f) = self.basis();
+        let ax = self.fov_x_deg.to_radians() / 2.0;
+        let ay = self.fov_y_deg().to_radians() / 2.0;
+        [
+            f,
+            r * ax.cos() + f * ax.sin(),
+            -r * ax.cos() + f * ax.sin(),
+            u * ay.cos() + f * ay.sin(),
+            -u * ay.cos() + f * ay.sin(),
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cam() -> Camera {
+        Camera::new(DVec3::new(0.0, 0.0, 10.0), DVec3::new(100.0, 0.0, 10.0), DVec3::Z, 90.0, 200, 100).unwrap()
+    }
+
+    #[test]
+    fn frustum_contains_what_projects_into_the_image() {
+        let c = cam();
+        let n = c.frustum_normals();
+        let inside = |p: DVec3| n.iter().all(|n| n.dot(p - c.eye_in_world) >= 0.0);
+        // Forward along +x; 90° horizontal → ±45°; aspect 2:1 → tan(ay) = 0.5.
+        assert!(inside(DVec3::new(10.0, 0.0, 10.0)));
+        assert!(inside(DVec3::new(10.0, 9.9, 10.0)));
+        assert!(!inside(DVec3::new(10.0, 10.1, 10.0)));
+        assert!(!inside(DVec3::new(10.0, -10.1, 10.0)));
+        assert!(inside(DVec3::new(10.0, 0.0, 14.9)));
+        assert!(!inside(DVec3::new(10.0, 0.0, 15.1)));
+        assert!(!inside(DVec3::new(-1.0, 0.0, 10.0)));
+        assert!((c.fov_y_deg() - 2.0 * 0.5f64.atan().to_degrees()).abs() < 1e-9);
+        for p in n {
+            assert!((p.length() - 1.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn kappa_matches_the_projection() {
+        // 90°, 200 px wide: at distance d, 1 m spans 100/d px; δ = 1 m is 1 px at d = 100.
+        let c = cam();
+        assert!((c.kappa(1.0) - 100.0).abs() < 1e-9);
+        assert!((c.kappa(2.0) - 50.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn rejects_degenerate_cameras() {
+        let e = DVec3::ZERO;
+        assert!(Camera::new(e, e, DVec3::Z, 60.0, 10, 10).is_err());
+        assert!(Camera::new(e, DVec3::Z, DVec3::Z, 60.0, 10, 10).is_err());
+        assert!(Camera::new(e, DVec3::X, DVec3::Z, 180.0, 10, 10).is_err());
+        assert!(Camera::new(e, DVec3::X, DVec3::Z, 60.0, 0, 10).is_err());
+        assert!(Camera::new(DVec3::new(f64::NAN, 0.0, 0.0), DVec3::X, DVec3::Z, 60.0, 10, 10).is_err());
+    }
+}
