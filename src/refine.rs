@@ -31,12 +31,25 @@ use crate::metric::{ErrorMetric, Isotropic, MetricKind, Projected};
 /// instrumented source (page-fault experiments) can observe every read without touching the loop.
 pub trait RecordSource: Sync {
     fn record(&self, index: u64) -> Record;
+
+    /// Hint that `record(index)` will be read soon (a cache prefetch); must not fault.
+    #[inline(always)]
+    fn prefetch(&self, _index: u64) {}
 }
 
 impl RecordSource for [Record] {
     #[inline(always)]
     fn record(&self, index: u64) -> Record {
         self[index as usize]
+    }
+
+    #[inline(always)]
+    fn prefetch(&self, index: u64) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(r) = self.get(index as usize) {
+            // SAFETY: a prefetch is only a hint; the address is inside the slice.
+            unsafe { std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((r as *const Record).cast()) }
+        }
     }
 }
 
@@ -408,6 +421,15 @@ impl<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, cons
             if let Some(s) = self.test_split(j, l - 1, mask, &m) {
                 if l >= 3 {
                     let [cl, cr] = self.layout.split_children(i, j);
+                    if L::PREFETCH_GRANDCHILDREN && l >= 4 {
+                        // The grandchildren are read right after the children: start their loads
+                        // now, so their latency overlaps the children's.
+                        for c in [cl, cr] {
+                            let [a, b] = self.layout.split_children(j, c);
+                            self.records.prefetch(a.index);
+                            self.records.prefetch(b.index);
+                        }
+                    }
                     let left = MorphTri {
                         z_left: m.z_left,
                         z_apex: s.z,

@@ -48,6 +48,8 @@ impl Embedded {
 }
 
 impl Layout for Embedded {
+    const PREFETCH_GRANDCHILDREN: bool = true;
+
     fn kind(&self) -> LayoutKind {
         LayoutKind::Embedded
     }

@@ -106,6 +106,8 @@ pub(crate) fn black_coords(offset: u64, t: u32, n: u32) -> Option<(u32, u32)> {
 }
 
 impl Layout for Interleaved {
+    const PREFETCH_GRANDCHILDREN: bool = true;
+
     fn kind(&self) -> LayoutKind {
         LayoutKind::Interleaved
     }

@@ -72,6 +72,10 @@ pub struct Vertex {
 
 /// A record order for a `(2^n + 1)²` grid.
 pub trait Layout: Clone + Send + Sync + 'static {
+    /// Whether [`Self::split_children`] is cheap enough (a few integer operations) that refinement
+    /// should compute grandchildren ahead of time to prefetch their records.
+    const PREFETCH_GRANDCHILDREN: bool = false;
+
     fn kind(&self) -> LayoutKind;
 
     fn grid(&self) -> Grid;

@@ -17,6 +17,8 @@ impl RowMajor {
 }
 
 impl Layout for RowMajor {
+    const PREFETCH_GRANDCHILDREN: bool = true;
+
     fn kind(&self) -> LayoutKind {
         LayoutKind::RowMajor
     }

@@ -48,6 +48,8 @@ impl Tiled {
 }
 
 impl Layout for Tiled {
+    const PREFETCH_GRANDCHILDREN: bool = true;
+
     fn kind(&self) -> LayoutKind {
         LayoutKind::Tiled
     }
