@@ -86,3 +86,45 @@ pub fn check_strip(grid: Grid, strip: &Strip, is_active: impl Fn(u32, u32) -> bo
     report.crack_free = report.edge_errors == 0 && report.winding_errors == 0 && report.area_ok;
     report
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn strip(v: &[(u32, u32)]) -> Strip {
+        Strip::from_vertices(v.iter().map(|&(x, y)| StripVertex { x, y }).collect())
+    }
+
+    #[test]
+    fn detects_a_t_junction_that_keeps_the_area() {
+        let g = Grid::new(1).unwrap();
+        let (sw, se, ne, nw, c) = ((0, 0), (2, 0), (2, 2), (0, 2), (1, 1));
+        // Lower-right root triangle split at the centre, upper-left one not: c sits on sw–ne.
+        let r = check_strip(g, &strip(&[sw, c, se, ne, ne, sw, sw, nw, ne]), |_, _| false);
+        assert_eq!(r.triangles, 3);
+        assert!(r.area_ok);
+        assert_eq!(r.winding_errors, 0);
+        assert_eq!(r.t_junctions, 1);
+        assert_eq!(r.unmatched_edges, 3);
+        assert!(!r.crack_free);
+        // The four root triangles around the centre are conforming.
+        let ok = check_strip(g, &strip(&[sw, sw, sw, c, se, c, ne, c, nw, sw]), |_, _| false);
+        assert!(ok.crack_free && ok.triangles == 4, "{ok:?}");
+        // ...unless the test says an edge midpoint should have been inserted.
+        let active_s = check_strip(g, &strip(&[sw, sw, sw, c, se, c, ne, c, nw, sw]), |x, y| (x, y) == (1, 0));
+        assert_eq!(active_s.active_midpoints, 1);
+        assert!(!active_s.crack_free);
+    }
+
+    #[test]
+    fn detects_wrong_winding_and_holes() {
+        let g = Grid::new(1).unwrap();
+        let (sw, se, ne, c) = ((0, 0), (2, 0), (2, 2), (1, 1));
+        let r = check_strip(g, &strip(&[sw, se, c]), |_, _| false);
+        assert_eq!(r.winding_errors, 1);
+        assert!(!r.area_ok && !r.crack_free);
+        let r = check_strip(g, &strip(&[sw, c, se, ne]), |_, _| false);
+        assert_eq!(r.winding_errors, 0);
+        assert!(!r.area_ok && r.unmatched_edges > 0);
+    }
+}

@@ -48,7 +48,9 @@ impl RecordSource for [Record] {
         #[cfg(target_arch = "x86_64")]
         if let Some(r) = self.get(index as usize) {
             // SAFETY: a prefetch is only a hint; the address is inside the slice.
-            unsafe { std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((r as *const Record).cast()) }
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((r as *const Record).cast())
+            }
         }
     }
 }
@@ -86,12 +88,18 @@ impl Strip {
         Strip::default()
     }
 
+    /// A strip of given vertices, without geomorph data (for checks and tests).
+    pub fn from_vertices(vertices: Vec<StripVertex>) -> Strip {
+        let parity = (vertices.len() % 2) as u8;
+        Strip { vertices, morph: Vec::new(), parity }
+    }
+
     /// Starts a strip at `v` (as the paper: `V = (v, v)`, parity 0).
-    fn seed<const MORPH: bool>(&mut self, v: StripVertex, m: Morph) {
+    fn seed(&mut self, v: StripVertex, m: Morph, morph: bool) {
         self.vertices.clear();
         self.morph.clear();
         self.vertices.extend([v, v]);
-        if MORPH {
+        if morph {
             self.morph.extend([m, m]);
         }
         self.parity = 0;
@@ -102,7 +110,7 @@ impl Strip {
     /// wrong winding. Invariant: `parity == len % 2`, so a vertex appended with parity p always lands
     /// at an index of parity `1 − p`.
     #[inline(always)]
-    fn append<const MORPH: bool>(&mut self, v: StripVertex, parity: u8, m: Morph) {
+    fn append(&mut self, v: StripVertex, parity: u8, m: Morph, morph: bool) {
         let n = self.vertices.len();
         debug_assert!(n >= 2);
         let (prev, last) = (self.vertices[n - 2], self.vertices[n - 1]);
@@ -113,21 +121,22 @@ impl Strip {
             self.parity = parity;
         } else {
             self.vertices.push(prev);
-            if MORPH {
+            if morph {
                 let pm = self.morph[n - 2];
                 self.morph.push(pm);
             }
         }
         self.vertices.push(v);
-        if MORPH {
+        if morph {
             self.morph.push(m);
         }
     }
 
     /// Appends without any check (ends the strip; stitches chunks).
-    fn push<const MORPH: bool>(&mut self, v: StripVertex, m: Morph) {
+    #[inline(always)]
+    fn push(&mut self, v: StripVertex, m: Morph, morph: bool) {
         self.vertices.push(v);
-        if MORPH {
+        if morph {
             self.morph.push(m);
         }
     }
@@ -220,7 +229,9 @@ pub enum Test {
     /// Error asks for refinement but the sphere is outside the frustum.
     Culled,
     /// Active; planes the sphere is not yet known to be inside of.
-    Active { mask: u8 },
+    Active {
+        mask: u8,
+    },
 }
 
 impl<M: ErrorMetric> View<M> {
@@ -281,7 +292,9 @@ impl<M: ErrorMetric> View<M> {
         let rel = self.position(x, y, rec.z) - self.eye;
         let r = rec.radius as f64 + self.margin_m * level as f64;
         let reach = self.kappa * rec.error as f64 + r;
-        if !(reach * reach > self.metric.distance_sq(rel)) {
+        // Written so that a NaN anywhere (a corrupt record) reads as inactive.
+        let active = reach * reach > self.metric.distance_sq(rel);
+        if !active {
             return Test::Inactive;
         }
         let mut mask = mask;
@@ -366,18 +379,78 @@ impl MorphTri {
     }
 }
 
+/// What the recursion carries for geomorphing: [`MorphTri`] when on, nothing when off (so the
+/// plain refinement passes no extra arguments).
+trait Carry: Copy + Send + Sync + 'static {
+    const ON: bool;
+    fn new(t: &MorphTri) -> Self;
+    fn apex(&self) -> Morph;
+    /// Height the split vertex morphs from: the mean of the hypotenuse's (morphed) ends.
+    fn mid(&self) -> f32;
+    /// The states of the left and right halves, given the split vertex's morphed height and blend.
+    fn halves(&self, z_split: f32, blend_split: f32) -> (Self, Self);
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct NoMorph;
+
+impl Carry for NoMorph {
+    const ON: bool = false;
+    #[inline(always)]
+    fn new(_: &MorphTri) -> Self {
+        NoMorph
+    }
+    #[inline(always)]
+    fn apex(&self) -> Morph {
+        Morph::default()
+    }
+    #[inline(always)]
+    fn mid(&self) -> f32 {
+        0.0
+    }
+    #[inline(always)]
+    fn halves(&self, _: f32, _: f32) -> (Self, Self) {
+        (NoMorph, NoMorph)
+    }
+}
+
+impl Carry for MorphTri {
+    const ON: bool = true;
+    #[inline(always)]
+    fn new(t: &MorphTri) -> Self {
+        *t
+    }
+    #[inline(always)]
+    fn apex(&self) -> Morph {
+        MorphTri::apex(self)
+    }
+    #[inline(always)]
+    fn mid(&self) -> f32 {
+        0.5 * (self.z_left + self.z_right)
+    }
+    #[inline(always)]
+    fn halves(&self, z: f32, blend: f32) -> (Self, Self) {
+        let m = self;
+        (
+            MorphTri { z_left: m.z_left, z_apex: z, z_right: m.z_apex, blend_left: m.blend_left, blend_apex: blend },
+            MorphTri { z_left: m.z_apex, z_apex: z, z_right: m.z_right, blend_left: m.blend_apex, blend_apex: blend },
+        )
+    }
+}
+
 #[inline(always)]
 fn sv(v: Vertex) -> StripVertex {
     StripVertex { x: v.x, y: v.y }
 }
 
 /// The recursion state of one (sub)strip.
-struct Walk<'a, L, R: ?Sized, M: ErrorMetric, const CULL: bool, const MORPH: bool> {
+struct Walk<'a, L, R: ?Sized, M: ErrorMetric, const CULL: bool, S: Carry> {
     layout: &'a L,
     records: &'a R,
     view: &'a View<M>,
     strip: &'a mut Strip,
     counters: RefineCounters,
+    carry: std::marker::PhantomData<S>,
 }
 
 /// What testing a triangle's split vertex gives the recursion.
@@ -387,12 +460,10 @@ struct Split {
     blend: f32,
 }
 
-impl<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, const MORPH: bool>
-    Walk<'_, L, R, M, CULL, MORPH>
-{
+impl<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, S: Carry> Walk<'_, L, R, M, CULL, S> {
     /// Tests split vertex `j` (level `lj`) of a triangle whose morph state is `m`.
     #[inline(always)]
-    fn test_split(&mut self, j: Vertex, lj: u32, mask: u8, m: &MorphTri) -> Option<Split> {
+    fn test_split(&mut self, j: Vertex, lj: u32, mask: u8, m: &S) -> Option<Split> {
         self.counters.visited += 1;
         let rec = self.records.record(j.index);
         match self.view.test::<CULL>(j.x, j.y, lj, rec, mask) {
@@ -402,9 +473,9 @@ impl<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, cons
                 None
             }
             Test::Active { mask } => {
-                if MORPH {
+                if S::ON {
                     let blend = self.view.blend(j.x, j.y, lj, rec);
-                    let mid = 0.5 * (m.z_left + m.z_right);
+                    let mid = m.mid();
                     Some(Split { mask, z: mid + blend * (rec.z - mid), blend })
                 } else {
                     Some(Split { mask, z: 0.0, blend: 1.0 })
@@ -416,7 +487,7 @@ impl<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, cons
     /// The hoisted `submesh_refine`: triangle with active apex `i` (level `l`) and hypotenuse
     /// midpoint `j`. Tests `j` once; recurses into both halves if it is active, appending `i`
     /// between them, else appends `i` alone.
-    fn sub(&mut self, i: Vertex, j: Vertex, l: u32, mask: u8, m: MorphTri) {
+    fn sub(&mut self, i: Vertex, j: Vertex, l: u32, mask: u8, m: S) {
         if l >= 2 {
             if let Some(s) = self.test_split(j, l - 1, mask, &m) {
                 if l >= 3 {
@@ -430,29 +501,21 @@ impl<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, cons
                             self.records.prefetch(b.index);
                         }
                     }
-                    let left = MorphTri {
-                        z_left: m.z_left,
-                        z_apex: s.z,
-                        z_right: m.z_apex,
-                        blend_left: m.blend_left,
-                        blend_apex: s.blend,
-                    };
+                    let (left, right) = m.halves(s.z, s.blend);
                     self.sub(j, cl, l - 1, s.mask, left);
-                    self.strip.append::<MORPH>(sv(i), (l & 1) as u8, m.apex());
-                    let right =
-                        MorphTri { z_left: m.z_apex, z_apex: s.z, z_right: m.z_right, blend_left: m.blend_apex, blend_apex: s.blend };
+                    self.strip.append(sv(i), (l & 1) as u8, m.apex(), S::ON);
                     self.sub(j, cr, l - 1, s.mask, right);
                 } else {
                     // j is a finest-level vertex: its triangles have no children.
                     let mj = Morph { blend: s.blend, z_m: s.z };
-                    self.strip.append::<MORPH>(sv(j), 1, mj);
-                    self.strip.append::<MORPH>(sv(i), 0, m.apex());
-                    self.strip.append::<MORPH>(sv(j), 1, mj);
+                    self.strip.append(sv(j), 1, mj, S::ON);
+                    self.strip.append(sv(i), 0, m.apex(), S::ON);
+                    self.strip.append(sv(j), 1, mj, S::ON);
                 }
                 return;
             }
         }
-        self.strip.append::<MORPH>(sv(i), (l & 1) as u8, m.apex());
+        self.strip.append(sv(i), (l & 1) as u8, m.apex(), S::ON);
     }
 }
 
@@ -496,7 +559,9 @@ impl Refiner {
                     .num_threads(threads)
                     .thread_name(|k| format!("relief-refine-{k}"))
                     .build()
-                    .map_err(|e| crate::Error::InvalidArgument(format!("cannot start {threads} refinement threads: {e}")))?,
+                    .map_err(|e| {
+                        crate::Error::InvalidArgument(format!("cannot start {threads} refinement threads: {e}"))
+                    })?,
             )
         } else {
             None
@@ -575,14 +640,14 @@ impl Refiner {
         strip: &mut Strip,
     ) -> RefineCounters {
         match (view.cull, view.morph) {
-            (false, false) => self.refine_mode::<L, R, M, false, false>(layout, records, view, strip),
-            (true, false) => self.refine_mode::<L, R, M, true, false>(layout, records, view, strip),
-            (false, true) => self.refine_mode::<L, R, M, false, true>(layout, records, view, strip),
-            (true, true) => self.refine_mode::<L, R, M, true, true>(layout, records, view, strip),
+            (false, false) => self.refine_mode::<L, R, M, false, NoMorph>(layout, records, view, strip),
+            (true, false) => self.refine_mode::<L, R, M, true, NoMorph>(layout, records, view, strip),
+            (false, true) => self.refine_mode::<L, R, M, false, MorphTri>(layout, records, view, strip),
+            (true, true) => self.refine_mode::<L, R, M, true, MorphTri>(layout, records, view, strip),
         }
     }
 
-    fn refine_mode<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, const MORPH: bool>(
+    fn refine_mode<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, S: Carry>(
         &mut self,
         layout: &L,
         records: &R,
@@ -613,28 +678,35 @@ impl Refiner {
                 m: MorphTri { z_left: ml.z_m, z_apex: zc, z_right: mr.z_m, blend_left: 1.0, blend_apex: 1.0 },
             }
         });
-        strip.seed::<MORPH>(sv(sw), corners[0].1);
+        strip.seed(sv(sw), corners[0].1, S::ON);
         let counters = if self.pool.is_some() && grid.levels() >= 8 {
-            self.refine_parallel::<L, R, M, CULL, MORPH>(layout, records, view, strip, &roots, &corners)
+            self.refine_parallel::<L, R, M, CULL, S>(layout, records, view, strip, &roots, &corners)
         } else {
-            let mut walk = Walk::<L, R, M, CULL, MORPH> { layout, records, view, strip, counters: Default::default() };
+            let mut walk = Walk::<L, R, M, CULL, S> {
+                layout,
+                records,
+                view,
+                strip,
+                counters: Default::default(),
+                carry: Default::default(),
+            };
             for (k, t) in roots.iter().enumerate() {
-                walk.sub(t.apex, t.split, t.level, t.mask, t.m);
+                walk.sub(t.apex, t.split, t.level, t.mask, S::new(&t.m));
                 if k < 3 {
                     let (v, m) = corners[k + 1];
-                    walk.strip.append::<MORPH>(sv(v), 1, m);
+                    walk.strip.append(sv(v), 1, m, S::ON);
                 }
             }
             walk.counters
         };
-        strip.push::<MORPH>(sv(sw), corners[0].1);
+        strip.push(sv(sw), corners[0].1, S::ON);
         counters
     }
 
     /// Expands the top of the recursion breadth-first (keeping strip order) until there are enough
     /// tasks to balance the pool, refines the tasks in parallel into their own strips, then
     /// stitches them with degenerate triangles so that every vertex keeps its winding parity.
-    fn refine_parallel<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, const MORPH: bool>(
+    fn refine_parallel<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, S: Carry>(
         &mut self,
         layout: &L,
         records: &R,
@@ -673,14 +745,15 @@ impl Refiner {
                     continue;
                 }
                 expanded = true;
-                let mut walk = Walk::<L, R, M, CULL, MORPH> {
+                let mut walk = Walk::<L, R, M, CULL, S> {
                     layout,
                     records,
                     view,
                     strip: &mut scratch,
                     counters: Default::default(),
+                    carry: Default::default(),
                 };
-                let split = walk.test_split(t.split, t.level - 1, t.mask, &t.m);
+                let split = walk.test_split(t.split, t.level - 1, t.mask, &S::new(&t.m));
                 counters += walk.counters;
                 match split {
                     None => self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, t.m.apex())),
@@ -739,9 +812,16 @@ impl Refiner {
                 .par_iter_mut()
                 .zip(tasks.par_iter())
                 .map(|(chunk, t)| {
-                    chunk.seed::<MORPH>(t.left, t.m.left());
-                    let mut walk = Walk::<L, R, M, CULL, MORPH> { layout, records, view, strip: chunk, counters: Default::default() };
-                    walk.sub(t.apex, t.split, t.level, t.mask, t.m);
+                    chunk.seed(t.left, t.m.left(), S::ON);
+                    let mut walk = Walk::<L, R, M, CULL, S> {
+                        layout,
+                        records,
+                        view,
+                        strip: chunk,
+                        counters: Default::default(),
+                        carry: Default::default(),
+                    };
+                    walk.sub(t.apex, t.split, t.level, t.mask, S::new(&t.m));
                     walk.counters
                 })
                 .reduce(RefineCounters::default, |mut a, b| {
@@ -755,22 +835,22 @@ impl Refiner {
         strip.vertices.reserve(total + self.items.len() * 2);
         for item in &self.items {
             match *item {
-                Item::Append(v, p, m) => strip.append::<MORPH>(v, p, m),
+                Item::Append(v, p, m) => strip.append(v, p, m, S::ON),
                 Item::Task(k) => {
                     let chunk = &self.chunks[k];
-                    let (a, ma) = (chunk.vertices[0], if MORPH { chunk.morph[0] } else { Morph::default() });
+                    let (a, ma) = (chunk.vertices[0], if S::ON { chunk.morph[0] } else { Morph::default() });
                     // The chunk was refined from `(a, a)` with parity 0, the same invariant as the
                     // whole strip (parity == len % 2): its vertex at local index 2 must land on an
                     // even index, after a repeated `a` so that the seam triangles are degenerate.
                     if strip.vertices.last() != Some(&a) {
-                        strip.push::<MORPH>(a, ma);
+                        strip.push(a, ma, S::ON);
                     }
-                    strip.push::<MORPH>(a, ma);
+                    strip.push(a, ma, S::ON);
                     if strip.len() % 2 == 1 {
-                        strip.push::<MORPH>(a, ma);
+                        strip.push(a, ma, S::ON);
                     }
                     strip.vertices.extend_from_slice(&chunk.vertices[2..]);
-                    if MORPH {
+                    if S::ON {
                         strip.morph.extend_from_slice(&chunk.morph[2..]);
                     }
                     strip.parity = (strip.len() % 2) as u8;
@@ -791,4 +871,68 @@ pub fn mesh_triangles(grid: Grid, vertices: impl IntoIterator<Item = (u32, u32)>
         t += if border { 1 } else { 2 };
     }
     t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::RowMajor;
+
+    /// A 3 × 3 grid (n = 1) of flat records; the centre has infinite error, the edge midpoints
+    /// `edge_error`.
+    fn tiny(edge_error: f32) -> (RowMajor, Vec<Record>) {
+        let layout = RowMajor::new(Grid::new(1).unwrap());
+        let mut records = vec![Record { z: 0.0, error: edge_error, radius: 0.0 }; 9];
+        records[layout.index(1, 1) as usize].error = f32::INFINITY;
+        (layout, records)
+    }
+
+    fn strip_of(layout: &RowMajor, records: &[Record], tolerance_px: f64) -> Vec<(u32, u32)> {
+        let camera =
+            Camera::new(DVec3::new(1.0, 1.0, 100.0), DVec3::new(1.0, 1.0, 0.0), DVec3::Y, 60.0, 640, 480).unwrap();
+        let options = RefineOptions { tolerance_px, ..RefineOptions::default() };
+        let view = View::new(&camera, &options, Isotropic, [1.0, 1.0], [2.0, 2.0], [0.0, 0.0]);
+        let mut strip = Strip::new();
+        Refiner::new(1).unwrap().refine(layout, records, &view, &mut strip);
+        strip.vertices.iter().map(|v| (v.x, v.y)).collect()
+    }
+
+    /// Worked by hand from the paper's `strip_append` rules: only the centre active gives the four
+    /// triangles around it, each corner turn costing one degenerate triangle.
+    #[test]
+    fn centre_only_strip_is_the_four_root_triangles() {
+        let (layout, records) = tiny(0.0);
+        let s = strip_of(&layout, &records, 1.0);
+        let (sw, se, ne, nw, c) = ((0, 0), (2, 0), (2, 2), (0, 2), (1, 1));
+        assert_eq!(s, vec![sw, sw, sw, c, se, c, ne, c, nw, sw]);
+    }
+
+    /// All eight triangles of the 3 × 3 grid, again worked by hand: the edge midpoints are appended
+    /// with parity 1, so each costs one repeated centre.
+    #[test]
+    fn fully_refined_tiny_grid_strip() {
+        let (layout, records) = tiny(10.0);
+        let s = strip_of(&layout, &records, 1.0);
+        let (sw, se, ne, nw, c) = ((0, 0), (2, 0), (2, 2), (0, 2), (1, 1));
+        let (w, south, e, n) = ((0, 1), (1, 0), (2, 1), (1, 2));
+        assert_eq!(s, vec![sw, sw, south, c, se, c, e, c, ne, c, n, c, nw, c, w, sw]);
+        let strip = Strip::from_vertices(s.iter().map(|&(x, y)| StripVertex { x, y }).collect());
+        assert_eq!(strip.triangle_counts(), (8, 6));
+        // Every triangle clockwise seen from above.
+        for [a, b, c] in strip.triangles() {
+            let cross = (b.x as i64 - a.x as i64) * (c.y as i64 - a.y as i64)
+                - (b.y as i64 - a.y as i64) * (c.x as i64 - a.x as i64);
+            assert!(cross < 0);
+        }
+    }
+
+    #[test]
+    fn append_keeps_parity_equal_to_length_parity() {
+        let mut s = Strip::new();
+        s.seed(StripVertex { x: 0, y: 0 }, Morph::default(), false);
+        for (k, p) in (1..).zip([1u8, 1, 0, 0, 1, 0, 1, 1]) {
+            s.append(StripVertex { x: k, y: 0 }, p, Morph::default(), false);
+            assert_eq!(s.parity as usize, s.len() % 2);
+        }
+    }
 }

@@ -66,7 +66,11 @@ fn random_camera(rng: &mut Rng, terrain: &TerrainFile) -> Camera {
     let eye = match rng.next() % 3 {
         0 => DVec3::new(rng.range(0.0, ex), rng.range(0.0, ey), zmax + rng.range(0.0, 0.5 * size)),
         1 => DVec3::new(rng.range(0.0, ex), rng.range(0.0, ey), rng.range(zmin, zmax)),
-        _ => DVec3::new(rng.range(-2.0 * ex, 3.0 * ex), rng.range(-2.0 * ey, 3.0 * ey), rng.range(zmin - size, zmax + size)),
+        _ => DVec3::new(
+            rng.range(-2.0 * ex, 3.0 * ex),
+            rng.range(-2.0 * ey, 3.0 * ey),
+            rng.range(zmin - size, zmax + size),
+        ),
     };
     let dir = rng.direction();
     let up = if dir.z.abs() > 0.99 { DVec3::Y } else { DVec3::Z };
@@ -78,8 +82,8 @@ fn random_camera(rng: &mut Rng, terrain: &TerrainFile) -> Camera {
 fn random_options(rng: &mut Rng) -> RefineOptions {
     RefineOptions {
         tolerance_px: 2f64.powf(rng.range(-1.0, 3.0)),
-        metric: if rng.next() % 2 == 0 { MetricKind::Isotropic } else { MetricKind::Projected },
-        cull: rng.next() % 4 != 0,
+        metric: if rng.next().is_multiple_of(2) { MetricKind::Isotropic } else { MetricKind::Projected },
+        cull: !rng.next().is_multiple_of(4),
         morph_ratio: None,
     }
 }
@@ -96,7 +100,12 @@ fn convert_all(input: &Path, dir: &Path, tag: &str) -> Vec<TerrainFile> {
         .collect()
 }
 
-fn check(terrain: &TerrainFile, camera: &Camera, options: &RefineOptions, strip: &Strip) -> relief::mesh_check::MeshCheck {
+fn check(
+    terrain: &TerrainFile,
+    camera: &Camera,
+    options: &RefineOptions,
+    strip: &Strip,
+) -> relief::mesh_check::MeshCheck {
     let report = ReportOptions { threads: 1, repeat: 1, check: true, compare_minimal: false };
     let (r, s) = refine_report(terrain, camera, options, &report).unwrap();
     assert_eq!(&s.vertices, &strip.vertices, "report refines the same strip");
@@ -133,7 +142,13 @@ fn crack_free_everywhere(files: &[TerrainFile], cameras: usize, seed: u64) {
             refiner.refine_file(f, &camera, &options, s);
         }
         for (f, s) in files.iter().zip(&strips).skip(1) {
-            assert_eq!(s.vertices, strips[0].vertices, "camera {k}: {} differs from {}", f.layout_name(), files[0].layout_name());
+            assert_eq!(
+                s.vertices,
+                strips[0].vertices,
+                "camera {k}: {} differs from {}",
+                f.layout_name(),
+                files[0].layout_name()
+            );
         }
         let c = check(&files[0], &camera, &options, &strips[0]);
         assert!(c.crack_free && c.inactive_vertices == 0, "camera {k} {camera:?} {options:?}: {c:?}");
@@ -285,7 +300,8 @@ fn geomorphing_blends_new_vertices_in_from_their_edge_midpoints() {
     let mut appeared = 0;
     for k in 0..100 {
         let camera = random_camera(&mut rng, file);
-        let options = RefineOptions { tolerance_px: 1.0, metric: MetricKind::Isotropic, cull: false, morph_ratio: Some(3.0) };
+        let options =
+            RefineOptions { tolerance_px: 1.0, metric: MetricKind::Isotropic, cull: false, morph_ratio: Some(3.0) };
         refiner.refine_file(file, &camera, &options, &mut before);
         refiner.refine_file(file, &camera, &RefineOptions { morph_ratio: None, ..options }, &mut plain);
         assert_eq!(before.vertices, plain.vertices, "geomorphing does not change the mesh");
@@ -309,7 +325,8 @@ fn geomorphing_blends_new_vertices_in_from_their_edge_midpoints() {
         // pixel, where without geomorphing it would pop by up to τ. Judged where the eye moved
         // little relative to the vertex's distance.
         let step = (camera.look_at_world - camera.eye_in_world) * 1e-4;
-        let moved = Camera { eye_in_world: camera.eye_in_world + step, look_at_world: camera.look_at_world + step, ..camera };
+        let moved =
+            Camera { eye_in_world: camera.eye_in_world + step, look_at_world: camera.look_at_world + step, ..camera };
         refiner.refine_file(file, &moved, &options, &mut after);
         let old = vertex_set(&before);
         let morphed: std::collections::HashMap<_, _> = after.vertices.iter().zip(&after.morph).collect();
@@ -319,7 +336,8 @@ fn geomorphing_blends_new_vertices_in_from_their_edge_midpoints() {
                 continue;
             }
             let [a, b] = file.grid().split_edge(v.x, v.y).unwrap();
-            let mid = 0.5 * (morphed[&StripVertex { x: a.0, y: a.1 }].z_m + morphed[&StripVertex { x: b.0, y: b.1 }].z_m);
+            let mid =
+                0.5 * (morphed[&StripVertex { x: a.0, y: a.1 }].z_m + morphed[&StripVertex { x: b.0, y: b.1 }].z_m);
             let p = DVec3::new(v.x as f64 * h.spacing_m[0], v.y as f64 * h.spacing_m[1], m.z_m as f64);
             let d = (p - moved.eye_in_world).length();
             if d > 100.0 * step.length() {
@@ -341,7 +359,8 @@ fn nested_mesh_is_close_to_and_contains_the_minimal_mesh() {
     let mut ratios = Vec::new();
     for _ in 0..100 {
         let camera = random_camera(&mut rng, file);
-        let options = RefineOptions { tolerance_px: 1.0, metric: MetricKind::Isotropic, cull: false, morph_ratio: None };
+        let options =
+            RefineOptions { tolerance_px: 1.0, metric: MetricKind::Isotropic, cull: false, morph_ratio: None };
         let (r, _) = refine_report(file, &camera, &options, &report).unwrap();
         let ratio = r.ratio_to_minimal.unwrap();
         assert!(ratio >= 1.0, "the minimal mesh is never larger: {ratio}");
@@ -357,18 +376,43 @@ fn cli_refine_reports_json_and_rejects_bad_views() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("z.relief");
     convert(&dem("zurich_25m_i16.tif"), &out, &ConvertOptions::new(LayoutKind::Hz)).unwrap();
-    let run = |args: &[&str]| {
-        Command::new(env!("CARGO_BIN_EXE_relief")).arg("refine").arg(&out).args(args).output().unwrap()
-    };
+    let run =
+        |args: &[&str]| Command::new(env!("CARGO_BIN_EXE_relief")).arg("refine").arg(&out).args(args).output().unwrap();
     let o = run(&[
-        "--eye", "6000,-2000,2500", "--look", "6400,6400,400", "--tolerance", "2", "--width", "1280", "--height", "720",
-        "--fov", "70", "--threads", "2", "--check", "--compare-minimal", "--repeat", "3", "--json",
+        "--eye",
+        "6000,-2000,2500",
+        "--look",
+        "6400,6400,400",
+        "--tolerance",
+        "2",
+        "--width",
+        "1280",
+        "--height",
+        "720",
+        "--fov",
+        "70",
+        "--threads",
+        "2",
+        "--check",
+        "--compare-minimal",
+        "--repeat",
+        "3",
+        "--json",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     for key in [
-        "triangles", "strip_len", "degenerate", "visited", "culled", "refine_ms", "mtris_per_s", "crack_free",
-        "edge_errors", "minimal_triangles", "ratio_to_minimal",
+        "triangles",
+        "strip_len",
+        "degenerate",
+        "visited",
+        "culled",
+        "refine_ms",
+        "mtris_per_s",
+        "crack_free",
+        "edge_errors",
+        "minimal_triangles",
+        "ratio_to_minimal",
     ] {
         assert!(j.get(key).is_some(), "missing {key} in {j}");
     }
