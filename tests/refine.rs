@@ -182,9 +182,9 @@ fn synthetic(dir: &Path, size: u32, seed: u64, relief_m: f64) -> PathBuf {
     let status = Command::new(env!("CARGO_BIN_EXE_relief-synth"))
         .arg(&out)
         .args(["--size", &size.to_string(), "--seed", &seed.to_string(), "--relief-m", &relief_m.to_string()])
-        .status()
+        .output()
         .unwrap();
-    assert!(status.success());
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
     out
 }
 
