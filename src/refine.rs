@@ -537,11 +537,19 @@ enum Item {
     Task(usize),
 }
 
+/// Default for [`Refiner::set_parallel_min_len`]: about 10⁴ triangles, below which two threads
+/// measured no faster than one (BENCHMARKS.md).
+pub const PARALLEL_MIN_LEN: usize = 16_384;
+
 /// Runs refinement, single-threaded or split across a thread pool, reusing its buffers between
 /// frames.
 pub struct Refiner {
     pool: Option<rayon::ThreadPool>,
     threads: usize,
+    /// Strips shorter than this (judged by the previous frame's) are refined on the calling
+    /// thread: splitting them costs more than it saves.
+    parallel_min_len: usize,
+    last_len: usize,
     items: Vec<Item>,
     next_items: Vec<Item>,
     tasks: Vec<Task>,
@@ -569,6 +577,8 @@ impl Refiner {
         Ok(Refiner {
             pool,
             threads,
+            parallel_min_len: PARALLEL_MIN_LEN,
+            last_len: usize::MAX,
             items: Vec::new(),
             next_items: Vec::new(),
             tasks: Vec::new(),
@@ -579,6 +589,12 @@ impl Refiner {
 
     pub fn threads(&self) -> usize {
         self.threads
+    }
+
+    /// Refine on the pool only when the previous strip had at least `len` vertices (default
+    /// [`PARALLEL_MIN_LEN`]; 0: always).
+    pub fn set_parallel_min_len(&mut self, len: usize) {
+        self.parallel_min_len = len;
     }
 
     /// Refines a mapped terrain file for `camera`, writing the strip into `strip`.
@@ -679,7 +695,8 @@ impl Refiner {
             }
         });
         strip.seed(sv(sw), corners[0].1, S::ON);
-        let counters = if self.pool.is_some() && grid.levels() >= 8 {
+        let parallel = self.pool.is_some() && grid.levels() >= 8 && self.last_len >= self.parallel_min_len;
+        let counters = if parallel {
             self.refine_parallel::<L, R, M, CULL, S>(layout, records, view, strip, &roots, &corners)
         } else {
             let mut walk = Walk::<L, R, M, CULL, S> {
@@ -700,6 +717,7 @@ impl Refiner {
             walk.counters
         };
         strip.push(sv(sw), corners[0].1, S::ON);
+        self.last_len = strip.len();
         counters
     }
 

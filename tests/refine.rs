@@ -260,7 +260,14 @@ fn threaded_refinement_gives_the_single_threaded_mesh() {
     files.extend(convert_all(&dem("fuji_terrain_rgb.png"), dir.path(), "fuji"));
     let mut rng = Rng(5);
     let mut single = Refiner::new(1).unwrap();
-    let mut pools: Vec<Refiner> = [2, 3, 4].into_iter().map(|t| Refiner::new(t).unwrap()).collect();
+    let mut pools: Vec<Refiner> = [2, 3, 4]
+        .into_iter()
+        .map(|t| {
+            let mut r = Refiner::new(t).unwrap();
+            r.set_parallel_min_len(0); // every view through the pool, however small
+            r
+        })
+        .collect();
     let (mut a, mut b) = (Strip::new(), Strip::new());
     for k in 0..300 {
         let file = &files[k % files.len()];
