@@ -357,6 +357,48 @@ impl<M: ErrorMetric> View<M> {
     }
 }
 
+/// Calls a generic function with a terrain's concrete layout and a [`View`] of the chosen metric
+/// (for monomorphised loops over one frame).
+pub trait ViewVisitor {
+    type Output;
+    fn visit<L: Layout, M: ErrorMetric>(self, layout: &L, view: &View<M>) -> Self::Output;
+}
+
+/// Builds the view of `terrain` for `camera` and `options` and hands it, with the terrain's layout,
+/// to `visitor`.
+pub fn with_view<V: ViewVisitor>(
+    terrain: &TerrainFile,
+    camera: &Camera,
+    options: &RefineOptions,
+    visitor: V,
+) -> V::Output {
+    struct Go<'a, V> {
+        terrain: &'a TerrainFile,
+        camera: &'a Camera,
+        options: &'a RefineOptions,
+        visitor: V,
+    }
+    impl<V: ViewVisitor> LayoutVisitor for Go<'_, V> {
+        type Output = V::Output;
+        fn visit<L: Layout>(self, layout: &L) -> V::Output {
+            let h = self.terrain.header();
+            let (spacing, extent, z_range) = (h.spacing_m, h.extent_m(), [h.z_min, h.z_max]);
+            match self.options.metric {
+                MetricKind::Isotropic => {
+                    let view = View::new(self.camera, self.options, Isotropic, spacing, extent, z_range);
+                    self.visitor.visit(layout, &view)
+                }
+                MetricKind::Projected => {
+                    let metric = Projected { forward: self.camera.forward() };
+                    let view = View::new(self.camera, self.options, metric, spacing, extent, z_range);
+                    self.visitor.visit(layout, &view)
+                }
+            }
+        }
+    }
+    terrain.layout().visit(Go { terrain, camera, options, visitor })
+}
+
 /// Morphed heights of a triangle's corners (left end of the hypotenuse, apex, right end) and the
 /// apex's blend, carried down the recursion.
 #[derive(Clone, Copy, Debug, Default)]
@@ -617,34 +659,18 @@ impl Refiner {
         options: &RefineOptions,
         strip: &mut Strip,
     ) -> RefineCounters {
-        let h = terrain.header();
-        let args = (h.spacing_m, h.extent_m(), [h.z_min, h.z_max]);
         struct Go<'a, R: ?Sized> {
             refiner: &'a mut Refiner,
             records: &'a R,
-            camera: &'a Camera,
-            options: &'a RefineOptions,
             strip: &'a mut Strip,
-            args: ([f64; 2], [f64; 2], [f64; 2]),
         }
-        impl<R: RecordSource + ?Sized> LayoutVisitor for Go<'_, R> {
+        impl<R: RecordSource + ?Sized> ViewVisitor for Go<'_, R> {
             type Output = RefineCounters;
-            fn visit<L: Layout>(self, layout: &L) -> RefineCounters {
-                let (spacing, extent, zr) = self.args;
-                match self.options.metric {
-                    MetricKind::Isotropic => {
-                        let view = View::new(self.camera, self.options, Isotropic, spacing, extent, zr);
-                        self.refiner.refine(layout, self.records, &view, self.strip)
-                    }
-                    MetricKind::Projected => {
-                        let metric = Projected { forward: self.camera.forward() };
-                        let view = View::new(self.camera, self.options, metric, spacing, extent, zr);
-                        self.refiner.refine(layout, self.records, &view, self.strip)
-                    }
-                }
+            fn visit<L: Layout, M: ErrorMetric>(self, layout: &L, view: &View<M>) -> RefineCounters {
+                self.refiner.refine(layout, self.records, view, self.strip)
             }
         }
-        terrain.layout().visit(Go { refiner: self, records, camera, options, strip, args })
+        with_view(terrain, camera, options, Go { refiner: self, records, strip })
     }
 
     /// The generic entry: layout, record source and metric are all monomorphised.

@@ -7,11 +7,11 @@ use serde::Serialize;
 
 use crate::camera::Camera;
 use crate::format::TerrainFile;
-use crate::layout::{Layout, LayoutVisitor};
+use crate::layout::Layout;
 use crate::mesh_check::{check_strip, MeshCheck};
-use crate::metric::{ErrorMetric, Isotropic, MetricKind, Projected};
+use crate::metric::ErrorMetric;
 use crate::minimal::minimal_mesh;
-use crate::refine::{RefineCounters, RefineOptions, Refiner, Strip, View};
+use crate::refine::{with_view, RefineCounters, RefineOptions, Refiner, Strip, View, ViewVisitor};
 
 /// What to measure besides the refinement itself.
 #[derive(Clone, Copy, Debug)]
@@ -77,29 +77,16 @@ pub fn refine_report(
 ) -> crate::Result<(RefineReport, Strip)> {
     struct Go<'a> {
         terrain: &'a TerrainFile,
-        camera: &'a Camera,
         options: &'a RefineOptions,
         report: &'a ReportOptions,
     }
-    impl LayoutVisitor for Go<'_> {
+    impl ViewVisitor for Go<'_> {
         type Output = crate::Result<(RefineReport, Strip)>;
-        fn visit<L: Layout>(self, layout: &L) -> Self::Output {
-            let h = self.terrain.header();
-            let (spacing, extent, zr) = (h.spacing_m, h.extent_m(), [h.z_min, h.z_max]);
-            match self.options.metric {
-                MetricKind::Isotropic => {
-                    let view = View::new(self.camera, self.options, Isotropic, spacing, extent, zr);
-                    run(self.terrain, layout, &view, self.options, self.report)
-                }
-                MetricKind::Projected => {
-                    let metric = Projected { forward: self.camera.forward() };
-                    let view = View::new(self.camera, self.options, metric, spacing, extent, zr);
-                    run(self.terrain, layout, &view, self.options, self.report)
-                }
-            }
+        fn visit<L: Layout, M: ErrorMetric>(self, layout: &L, view: &View<M>) -> Self::Output {
+            run(self.terrain, layout, view, self.options, self.report)
         }
     }
-    terrain.layout().visit(Go { terrain, camera, options, report })
+    with_view(terrain, camera, options, Go { terrain, options, report })
 }
 
 fn run<L: Layout, M: ErrorMetric>(

@@ -1,7 +1,10 @@
 //! End-to-end conversion of the real DEMs in ../shared/data/dem into every layout, with `info` and
 //! `verify` agreeing, and the file-level guarantees (atomic output, exact errors for bad input).
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{dem, REAL_DEMS};
+use std::path::Path;
 use std::process::Command;
 
 use relief::convert::{convert, ConvertOptions};
@@ -9,19 +12,6 @@ use relief::format::TerrainFile;
 use relief::inspect;
 use relief::layout::{Layout, LayoutKind};
 use relief::progress::Progress;
-
-fn dem(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/dem").join(name)
-}
-
-const REAL_DEMS: [&str; 6] = [
-    "zurich_25m_i16.tif",
-    "lidar_1m_f32.tif",
-    "etopo20_world.tif",
-    "fuji_terrain_rgb.png",
-    "terrarium.png",
-    "hugo_site_nodata.asc",
-];
 
 fn relief() -> Command {
     Command::new(env!("CARGO_BIN_EXE_relief"))

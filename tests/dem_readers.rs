@@ -1,15 +1,15 @@
 //! DEM readers: the real files in `../shared/data/dem`, fixtures written here for every format and
 //! sample type, and malformed input (which must give an error naming the file, never a panic).
 
+mod common;
+
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
 use relief::dem::{self, DemFormat, DemInfo, SourceSpacing};
 
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/dem");
-
 fn data(name: &str) -> PathBuf {
-    Path::new(DATA).join(name)
+    common::dem(name)
 }
 
 /// Everything a read delivered: the grid (row-major, NaN for nodata) and the header.
@@ -821,14 +821,7 @@ fn unknown_empty_and_missing_files() {
 #[test]
 fn truncated_real_files_fail_cleanly() {
     let dir = tempfile::tempdir().unwrap();
-    for name in [
-        "zurich_25m_i16.tif",
-        "lidar_1m_f32.tif",
-        "etopo20_world.tif",
-        "fuji_terrain_rgb.png",
-        "terrarium.png",
-        "hugo_site_nodata.asc",
-    ] {
+    for name in common::REAL_DEMS {
         let bytes = std::fs::read(data(name)).unwrap();
         // (Not "all but the last byte": in lidar's padded edge tiles that byte is never needed.)
         for len in [100, bytes.len() / 2, bytes.len() * 3 / 4] {

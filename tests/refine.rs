@@ -3,6 +3,9 @@
 //! the same strip, the mesh shrinks as τ grows, culling only removes, threads change nothing, and
 //! geomorphing does not pop.
 
+mod common;
+
+use common::{dem, REAL_DEMS};
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -16,19 +19,6 @@ use relief::mesh_check::check_strip;
 use relief::metric::MetricKind;
 use relief::refine::{mesh_triangles, RefineOptions, Refiner, Strip, StripVertex};
 use relief::refine_report::{refine_report, ReportOptions};
-
-fn dem(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/dem").join(name)
-}
-
-const REAL_DEMS: [&str; 6] = [
-    "zurich_25m_i16.tif",
-    "lidar_1m_f32.tif",
-    "etopo20_world.tif",
-    "fuji_terrain_rgb.png",
-    "terrarium.png",
-    "hugo_site_nodata.asc",
-];
 
 /// SplitMix64: a small deterministic generator, so failures replay.
 struct Rng(u64);
