@@ -803,7 +803,7 @@ impl Refiner {
                     None => self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, t.m.apex())),
                     Some(s) => {
                         let [cl, cr] = layout.split_children(t.apex, t.split);
-                        let m = t.m;
+                        let (left, right) = Carry::halves(&t.m, s.z, s.blend);
                         self.next_items.push(Item::Task(self.next_tasks.len()));
                         self.next_tasks.push(Task {
                             apex: t.split,
@@ -811,15 +811,9 @@ impl Refiner {
                             left: t.left,
                             level: t.level - 1,
                             mask: s.mask,
-                            m: MorphTri {
-                                z_left: m.z_left,
-                                z_apex: s.z,
-                                z_right: m.z_apex,
-                                blend_left: m.blend_left,
-                                blend_apex: s.blend,
-                            },
+                            m: left,
                         });
-                        self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, m.apex()));
+                        self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, t.m.apex()));
                         self.next_items.push(Item::Task(self.next_tasks.len()));
                         self.next_tasks.push(Task {
                             apex: t.split,
@@ -827,13 +821,7 @@ impl Refiner {
                             left: sv(t.apex),
                             level: t.level - 1,
                             mask: s.mask,
-                            m: MorphTri {
-                                z_left: m.z_apex,
-                                z_apex: s.z,
-                                z_right: m.z_right,
-                                blend_left: m.blend_apex,
-                                blend_apex: s.blend,
-                            },
+                            m: right,
                         });
                     }
                 }
