@@ -34,6 +34,12 @@ pub enum Error {
     GridTooLarge { path: PathBuf, width: u64, height: u64, max_n: u32 },
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// No usable GPU, or the GPU refused a request (creation, limits, readback).
+    #[error("GPU: {0}")]
+    Gpu(String),
+    /// No window can be opened here (no display); the message says how to fly headless.
+    #[error("{0}")]
+    NoDisplay(String),
     #[error("interrupted")]
     Interrupted,
 }

@@ -2,12 +2,13 @@
 //! (`relief: FILE: problem`) with a non-zero exit status.
 
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::process::ExitCode;
 
 use anyhow::bail;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 
 use glam::DVec3;
 use relief::camera::Camera;
@@ -19,7 +20,11 @@ use relief::layout::LayoutKind;
 use relief::metric::MetricKind;
 use relief::progress::Progress;
 use relief::refine::RefineOptions;
+use relief::flight::FlightPath;
+use relief::fly::{bundled_terrain, fly_headless, render_still, save_png, HeadlessOptions};
+use relief::window::{fly_window, WindowOptions};
 use relief::refine_report::{refine_report, ReportOptions};
+use relief::render::{DrawStyle, Gpu};
 
 #[derive(Parser)]
 #[command(name = "relief", version, about = "Terrain files for out-of-core, view-dependent rendering of height fields")]
@@ -38,6 +43,82 @@ fn layout_parser() -> impl clap::builder::TypedValueParser<Value = LayoutKind> {
 fn format_parser() -> impl clap::builder::TypedValueParser<Value = DemFormat> {
     PossibleValuesParser::new(DemFormat::ALL.map(DemFormat::name))
         .map(|name| DemFormat::from_name(&name).expect("a possible value"))
+}
+
+/// A view and how to refine it (shared by `refine` and `render`).
+#[derive(Args)]
+struct ViewArgs {
+    /// Eye position "X,Y,Z", metres.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    eye: String,
+    /// Point looked at "X,Y,Z", metres.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    look: String,
+    /// Up direction "X,Y,Z".
+    #[arg(long, value_name = "X,Y,Z", default_value = "0,0,1", allow_hyphen_values = true)]
+    up: String,
+    /// Screen-space error tolerance τ, pixels.
+    #[arg(long, value_name = "PX", default_value_t = 1.0)]
+    tolerance: f64,
+    /// Image width, pixels.
+    #[arg(long, value_name = "W", default_value_t = 1920)]
+    width: u32,
+    /// Image height, pixels.
+    #[arg(long, value_name = "H", default_value_t = 1080)]
+    height: u32,
+    /// Horizontal field of view, degrees.
+    #[arg(long, value_name = "DEG", default_value_t = 60.0)]
+    fov: f64,
+    /// Screen-space error metric.
+    #[arg(long, value_parser = metric_parser(), default_value = "isotropic")]
+    metric: MetricKind,
+    /// Do not cull to the view frustum (refine the whole terrain for the eye).
+    #[arg(long)]
+    no_cull: bool,
+    /// Geomorphing: blend vertices in between the distances where their error projects to τ
+    /// and to RATIO·τ (RATIO > 1).
+    #[arg(long, value_name = "RATIO")]
+    geomorph: Option<f64>,
+    /// Refinement threads (1: no pool).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    threads: usize,
+}
+
+impl ViewArgs {
+    /// The validated camera and refinement options.
+    fn resolve(&self) -> anyhow::Result<(Camera, RefineOptions)> {
+        let options = refine_options(self.tolerance, self.metric, self.no_cull, self.geomorph)?;
+        if self.threads == 0 {
+            bail!("--threads must be at least 1");
+        }
+        let camera = Camera::new(
+            parse_vec3("--eye", &self.eye)?,
+            parse_vec3("--look", &self.look)?,
+            parse_vec3("--up", &self.up)?,
+            self.fov,
+            self.width,
+            self.height,
+        )?;
+        Ok((camera, options))
+    }
+}
+
+/// Validated refinement options from the command line.
+fn refine_options(
+    tolerance: f64,
+    metric: MetricKind,
+    no_cull: bool,
+    geomorph: Option<f64>,
+) -> anyhow::Result<RefineOptions> {
+    if !(tolerance > 0.0 && tolerance.is_finite()) {
+        bail!("--tolerance: expected a positive number of pixels, got {tolerance}");
+    }
+    if let Some(r) = geomorph {
+        if !(r > 1.0 && r.is_finite()) {
+            bail!("--geomorph: expected a ratio greater than 1, got {r}");
+        }
+    }
+    Ok(RefineOptions { tolerance_px: tolerance, metric, cull: !no_cull, morph_ratio: geomorph })
 }
 
 #[derive(Subcommand)]
@@ -109,40 +190,8 @@ enum Command {
     /// projects to more than --tolerance pixels on a --width-pixel-wide image.
     Refine {
         file: PathBuf,
-        /// Eye position "X,Y,Z", metres.
-        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
-        eye: String,
-        /// Point looked at "X,Y,Z", metres.
-        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
-        look: String,
-        /// Up direction "X,Y,Z".
-        #[arg(long, value_name = "X,Y,Z", default_value = "0,0,1", allow_hyphen_values = true)]
-        up: String,
-        /// Screen-space error tolerance τ, pixels.
-        #[arg(long, value_name = "PX", default_value_t = 1.0)]
-        tolerance: f64,
-        /// Image width, pixels.
-        #[arg(long, value_name = "W", default_value_t = 1920)]
-        width: u32,
-        /// Image height, pixels.
-        #[arg(long, value_name = "H", default_value_t = 1080)]
-        height: u32,
-        /// Horizontal field of view, degrees.
-        #[arg(long, value_name = "DEG", default_value_t = 60.0)]
-        fov: f64,
-        /// Screen-space error metric.
-        #[arg(long, value_parser = metric_parser(), default_value = "isotropic")]
-        metric: MetricKind,
-        /// Do not cull to the view frustum (refine the whole terrain for the eye).
-        #[arg(long)]
-        no_cull: bool,
-        /// Geomorphing: blend vertices in between the distances where their error projects to τ
-        /// and to RATIO·τ (RATIO > 1).
-        #[arg(long, value_name = "RATIO")]
-        geomorph: Option<f64>,
-        /// Refinement threads (1: no pool).
-        #[arg(long, value_name = "N", default_value_t = 1)]
-        threads: usize,
+        #[command(flatten)]
+        view: ViewArgs,
         /// Prove the mesh conforming: edges, areas, windings, T-junctions.
         #[arg(long)]
         check: bool,
@@ -155,6 +204,89 @@ enum Command {
         /// Print JSON on stdout.
         #[arg(long)]
         json: bool,
+    },
+    /// Fly over a terrain: in a window, or headless along a recorded path.
+    ///
+    /// With no FILE, flies over the bundled terrain (data/zurich_25m_i16.tif, converted on first
+    /// use into ~/.cache/relief). In a window: drag to look, W/A/S/D/Q/E to move (Shift ×4), wheel
+    /// for speed, F freeze refinement, T wireframe, F12 or P screenshot, R record the path, Esc quit.
+    /// With --path: renders each frame of PATH.json ({"eye": [x,y,z], "look": [x,y,z]} per frame,
+    /// world metres) offscreen, optionally to PNGs, and reports per-frame figures.
+    Fly {
+        /// Terrain file (default: the bundled terrain).
+        file: Option<PathBuf>,
+        /// Fly headless along this path (see `relief path`) instead of opening a window.
+        #[arg(long, value_name = "PATH.json")]
+        path: Option<PathBuf>,
+        /// Headless: write each frame as DIR/frame_00000.png, ...
+        #[arg(long, value_name = "DIR", requires = "path")]
+        frames_out: Option<PathBuf>,
+        /// Headless: write per-frame figures (refine ms, render ms, triangles, bytes, faults) as JSON.
+        #[arg(long, value_name = "OUT.json", requires = "path")]
+        stats: Option<PathBuf>,
+        /// Headless: print the summary as JSON on stdout.
+        #[arg(long, requires = "path")]
+        json: bool,
+        /// Where refinement runs: on its own thread (the render thread draws the newest finished
+        /// strip and never waits) or synchronously before each frame. Default: thread in a
+        /// window, sync headless (each frame drawn with its own view's strip).
+        #[arg(long, value_parser = ["thread", "sync"])]
+        refinement: Option<String>,
+        /// Screen-space error tolerance τ, pixels.
+        #[arg(long, value_name = "PX", default_value_t = 1.0)]
+        tolerance: f64,
+        /// Image or window width, pixels.
+        #[arg(long, value_name = "W", default_value_t = 1280)]
+        width: u32,
+        /// Image or window height, pixels.
+        #[arg(long, value_name = "H", default_value_t = 720)]
+        height: u32,
+        /// Horizontal field of view, degrees.
+        #[arg(long, value_name = "DEG", default_value_t = 60.0)]
+        fov: f64,
+        /// Screen-space error metric.
+        #[arg(long, value_parser = metric_parser(), default_value = "isotropic")]
+        metric: MetricKind,
+        /// Do not cull to the view frustum.
+        #[arg(long)]
+        no_cull: bool,
+        /// Geomorphing ratio (> 1), as for `refine`.
+        #[arg(long, value_name = "RATIO")]
+        geomorph: Option<f64>,
+        /// Refinement threads.
+        #[arg(long, value_name = "N", default_value_t = 1)]
+        threads: usize,
+        /// Start with the wireframe overlay on.
+        #[arg(long)]
+        wireframe: bool,
+        /// Directory for screenshots and recorded paths (window).
+        #[arg(long, value_name = "DIR", default_value = ".")]
+        output_dir: PathBuf,
+        /// No progress bars.
+        #[arg(long, short)]
+        quiet: bool,
+    },
+    /// Refine and render one view offscreen (no window needed) to a PNG image.
+    ///
+    /// Coordinates as for `refine`. Heights are uploaded to the GPU once; the frame then sends
+    /// only the strip (8 bytes per vertex, 16 with --geomorph). Without a GPU, Mesa's software
+    /// Vulkan (lavapipe) renders it.
+    Render {
+        file: PathBuf,
+        #[command(flatten)]
+        view: ViewArgs,
+        /// PNG image to write (replaced atomically).
+        #[arg(long, value_name = "IMAGE.png")]
+        out: PathBuf,
+        /// Overlay the mesh edges (shows the level of detail).
+        #[arg(long)]
+        wireframe: bool,
+        /// Print the frame's figures as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+        /// No progress bars.
+        #[arg(long, short)]
+        quiet: bool,
     },
 }
 
@@ -180,6 +312,16 @@ fn parse_spacing(s: &str) -> anyhow::Result<[f64; 2]> {
         Some([x, y]) if *x > 0.0 && *y > 0.0 && x.is_finite() && y.is_finite() => Ok([*x, *y]),
         _ => bail!("--spacing: expected positive metres as S or SX,SY, got '{s}'"),
     }
+}
+
+/// Writes a file through a temporary file beside it, so it is never half-written.
+fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
+    use std::io::Write;
+    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    tmp.write_all(bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    tmp.persist(path).map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e.error))?;
+    Ok(())
 }
 
 fn progress(quiet: bool) -> Progress {
@@ -294,45 +436,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             );
             Ok(ExitCode::SUCCESS)
         }
-        Command::Refine {
-            file,
-            eye,
-            look,
-            up,
-            tolerance,
-            width,
-            height,
-            fov,
-            metric,
-            no_cull,
-            geomorph,
-            threads,
-            check,
-            compare_minimal,
-            repeat,
-            json,
-        } => {
-            if !(tolerance > 0.0 && tolerance.is_finite()) {
-                bail!("--tolerance: expected a positive number of pixels, got {tolerance}");
+        Command::Refine { file, view, check, compare_minimal, repeat, json } => {
+            let (camera, options) = view.resolve()?;
+            if repeat == 0 {
+                bail!("--repeat must be at least 1");
             }
-            if let Some(r) = geomorph {
-                if !(r > 1.0 && r.is_finite()) {
-                    bail!("--geomorph: expected a ratio greater than 1, got {r}");
-                }
-            }
-            if threads == 0 || repeat == 0 {
-                bail!("--threads and --repeat must be at least 1");
-            }
-            let camera = Camera::new(
-                parse_vec3("--eye", &eye)?,
-                parse_vec3("--look", &look)?,
-                parse_vec3("--up", &up)?,
-                fov,
-                width,
-                height,
-            )?;
+            let threads = view.threads;
             let f = TerrainFile::open(&file)?;
-            let options = RefineOptions { tolerance_px: tolerance, metric, cull: !no_cull, morph_ratio: geomorph };
             let report = ReportOptions { threads, repeat, check, compare_minimal };
             let (r, _) = refine_report(&f, &camera, &options, &report)?;
             if json {
@@ -362,6 +472,127 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             let failed = r.check.as_ref().is_some_and(|c| !c.crack_free || c.inactive_vertices > 0);
             Ok(if failed { ExitCode::FAILURE } else { ExitCode::SUCCESS })
+        }
+        Command::Fly {
+            file,
+            path,
+            frames_out,
+            stats,
+            json,
+            refinement,
+            tolerance,
+            width,
+            height,
+            fov,
+            metric,
+            no_cull,
+            geomorph,
+            threads,
+            wireframe,
+            output_dir,
+            quiet,
+        } => {
+            let refine = refine_options(tolerance, metric, no_cull, geomorph)?;
+            if threads == 0 {
+                bail!("--threads must be at least 1");
+            }
+            if width == 0 || height == 0 {
+                bail!("--width and --height must be at least 1 pixel");
+            }
+            let file = match file {
+                Some(f) => f,
+                None => bundled_terrain(progress(quiet))?,
+            };
+            let terrain = Arc::new(TerrainFile::open(&file)?);
+            let Some(path) = path else {
+                let options = WindowOptions {
+                    width_px: width,
+                    height_px: height,
+                    fov_x_deg: fov,
+                    refine,
+                    wireframe,
+                    threads,
+                    sync: refinement.as_deref() == Some("sync"),
+                    output_dir,
+                    progress: progress(quiet),
+                };
+                fly_window(terrain, options)?;
+                return Ok(ExitCode::SUCCESS);
+            };
+            let flight = FlightPath::load(&path)?;
+            let cameras = flight
+                .frames
+                .iter()
+                .enumerate()
+                .map(|(k, f)| {
+                    Camera::new(DVec3::from(f.eye), DVec3::from(f.look), DVec3::Z, fov, width, height)
+                        .map_err(|e| anyhow::anyhow!("{}: frame {k}: {e}", path.display()))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let options = HeadlessOptions {
+                width_px: width,
+                height_px: height,
+                fov_x_deg: fov,
+                refine,
+                style: DrawStyle { wireframe },
+                threads,
+                refine_thread: refinement.as_deref() == Some("thread"),
+                frames_out,
+                progress: progress(quiet),
+            };
+            let report = fly_headless(terrain, &cameras, &options)?;
+            if let Some(out) = &stats {
+                let text = serde_json::to_string_pretty(&report)?;
+                write_atomic(out, text.as_bytes())?;
+            }
+            let s = &report.summary;
+            if json {
+                println!("{}", serde_json::to_string_pretty(s)?);
+            } else {
+                println!(
+                    "{}: {} frames at {} x {}, {:.1} fps, frame {:.2} ms, refine {:.2} ms, render {:.2} ms (medians), {:.0} triangles and {:.0} bytes uploaded per frame (mean), {} major / {} minor page faults ({})",
+                    file.display(),
+                    s.frames,
+                    s.width,
+                    s.height,
+                    s.fps,
+                    s.frame_ms_median,
+                    s.refine_ms_median,
+                    s.render_ms_median,
+                    s.triangles_mean,
+                    s.upload_bytes_mean,
+                    s.major_faults,
+                    s.minor_faults,
+                    s.adapter
+                );
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Render { file, view, out, wireframe, json, quiet } => {
+            let (camera, options) = view.resolve()?;
+            let f = TerrainFile::open(&file)?;
+            let gpu = Gpu::headless()?;
+            let style = DrawStyle { wireframe };
+            let (image, r) = render_still(&gpu, &f, &camera, &options, style, view.threads, progress(quiet))?;
+            save_png(&image, &out)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                println!(
+                    "{}: {} x {} px, {} triangles (strip {}), refine {:.2} ms, render {:.2} ms, {} uploaded this frame, heights {} on the GPU ({})",
+                    out.display(),
+                    r.width,
+                    r.height,
+                    r.triangles,
+                    r.strip_len,
+                    r.refine_ms,
+                    r.render_ms,
+                    fmt_bytes(r.upload_bytes),
+                    fmt_bytes(r.heights_gpu_bytes),
+                    r.adapter
+                );
+            }
+            Ok(ExitCode::SUCCESS)
         }
         Command::Verify { file, json, quiet } => {
             let f = TerrainFile::open(&file)?;

@@ -1,0 +1,599 @@
+//! The terrain renderer: owns `shaders/terrain.wgsl`, the resident heights, the strip buffers and
+//! the pipelines (terrain, geomorphed terrain, wireframe, sky, and the probe used by tests).
+//!
+//! Per refinement update only the strip is uploaded: 8 bytes per vertex (grid x, y as `u32`), plus
+//! 8 more with geomorphing (blend, morphed height). Per frame a 240-byte uniform follows the
+//! camera. Positions are built in the vertex shader from the heights texture; the fragment shader
+//! shades from the full-resolution heights (CPU reference: `render::shade`).
+
+use glam::{DVec3, Mat4, Vec3};
+
+use crate::camera::Camera;
+use crate::error::Result;
+use crate::format::TerrainFile;
+use crate::progress::Progress;
+use crate::refine::{Morph, Strip, StripVertex};
+use crate::render::gpu::Gpu;
+use crate::render::heights::{GpuHeights, HeightTiling};
+use crate::render::shade::ShadeParams;
+
+/// WGSL source of the terrain shaders.
+pub const TERRAIN_WGSL: &str = include_str!("../../shaders/terrain.wgsl");
+
+/// Depth buffer format: reversed z (1 at the near plane, 0 at infinity) in f32, for precision
+/// from a metre to the horizon.
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// Format of the two probe targets, see `fs_probe` and [`Probe`].
+pub const PROBE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+
+/// Bytes uploaded per strip vertex without and with geomorphing.
+pub const VERTEX_BYTES: u64 = std::mem::size_of::<StripVertex>() as u64;
+pub const MORPH_BYTES: u64 = std::mem::size_of::<Morph>() as u64;
+
+/// The uniform block `Frame` of `terrain.wgsl` (same field order and padding).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct FrameUniform {
+    clip_from_rel: [[f32; 4]; 4],
+    rel_from_clip: [[f32; 4]; 4],
+    eye_in_world: [f32; 4],
+    world_from_grid: [f32; 4],
+    z_min: f32,
+    z_land_lo: f32,
+    z_max: f32,
+    fog_distance_m: f32,
+    sun_dir: [f32; 4],
+    tile_posts: u32,
+    tiles_per_row: u32,
+    posts: u32,
+    flags: u32,
+    wire_colour: [f32; 4],
+    valid_window: [f32; 4],
+}
+
+/// What the probe pass writes to its second target (the first always holds grid x, grid y,
+/// surface height and mesh height).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Probe {
+    /// The shading normal (x, y, z, 1).
+    Normal = 1,
+    /// The shaded, fogged colour before sRGB encoding: linear (r, g, b, 1).
+    Colour = 2,
+}
+
+/// Bytes of the per-frame uniform upload.
+pub const FRAME_UNIFORM_BYTES: u64 = std::mem::size_of::<FrameUniform>() as u64;
+
+/// How to draw a frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DrawStyle {
+    /// Overlay the strip's edges (shows the level of detail).
+    pub wireframe: bool,
+}
+
+impl Default for DrawStyle {
+    fn default() -> Self {
+        DrawStyle { wireframe: false }
+    }
+}
+
+/// Options for building a renderer.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RendererOptions {
+    /// Force a heights tile size (posts per side); default: the least memory within the limits.
+    pub tile_posts: Option<u32>,
+}
+
+/// A growable GPU vertex buffer.
+struct VertexBuffer {
+    buffer: wgpu::Buffer,
+    capacity: u64,
+    label: &'static str,
+}
+
+impl VertexBuffer {
+    fn new(device: &wgpu::Device, label: &'static str, capacity: u64) -> VertexBuffer {
+        let capacity = capacity.max(256);
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: capacity,
+            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        VertexBuffer { buffer, capacity, label }
+    }
+
+    fn write(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, bytes: &[u8]) {
+        let len = bytes.len() as u64;
+        if len > self.capacity {
+            // Grow by half again so a slowly growing strip does not reallocate every update.
+            *self = VertexBuffer::new(device, self.label, (len + len / 2).next_multiple_of(256));
+        }
+        if len > 0 {
+            queue.write_buffer(&self.buffer, 0, bytes);
+        }
+    }
+}
+
+/// Renders strips of one terrain.
+pub struct TerrainRenderer {
+    heights: GpuHeights,
+    shade: ShadeParams,
+    /// The DEM's posts in the grid, inclusive `[x0, y0, x1, y1]`.
+    valid_window: [u32; 4],
+    uniform: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    terrain_pipeline: wgpu::RenderPipeline,
+    terrain_morph_pipeline: wgpu::RenderPipeline,
+    /// Line strips over every vertex (edges i–i+1) and over every other vertex (edges i–i+2).
+    wire_pipelines: [wgpu::RenderPipeline; 2],
+    wire_morph_pipelines: [wgpu::RenderPipeline; 2],
+    sky_pipeline: wgpu::RenderPipeline,
+    probe_pipeline: wgpu::RenderPipeline,
+    vertices: VertexBuffer,
+    morph: VertexBuffer,
+    strip_len: u32,
+    strip_morph: bool,
+    triangles: u64,
+    /// Bytes of the last strip upload.
+    last_upload_bytes: u64,
+}
+
+fn grid_layout(stride: u64) -> wgpu::VertexBufferLayout<'static> {
+    const ATTR: [wgpu::VertexAttribute; 1] =
+        [wgpu::VertexAttribute { format: wgpu::VertexFormat::Uint32x2, offset: 0, shader_location: 0 }];
+    wgpu::VertexBufferLayout { array_stride: stride, step_mode: wgpu::VertexStepMode::Vertex, attributes: &ATTR }
+}
+
+fn morph_layout(stride: u64) -> wgpu::VertexBufferLayout<'static> {
+    const ATTR: [wgpu::VertexAttribute; 1] =
+        [wgpu::VertexAttribute { format: wgpu::VertexFormat::Float32x2, offset: 0, shader_location: 1 }];
+    wgpu::VertexBufferLayout { array_stride: stride, step_mode: wgpu::VertexStepMode::Vertex, attributes: &ATTR }
+}
+
+impl TerrainRenderer {
+    /// Uploads the heights of `terrain` and builds the pipelines for `colour_format`; GPU errors
+    /// (too little memory, limits) come back as [`crate::Error::Gpu`].
+    pub fn new(
+        gpu: &Gpu,
+        terrain: &TerrainFile,
+        colour_format: wgpu::TextureFormat,
+        options: RendererOptions,
+        progress: Progress,
+    ) -> Result<TerrainRenderer> {
+        gpu.scoped("building the terrain renderer", || Self::build(gpu, terrain, colour_format, options, progress))
+    }
+
+    fn build(
+        gpu: &Gpu,
+        terrain: &TerrainFile,
+        colour_format: wgpu::TextureFormat,
+        options: RendererOptions,
+        progress: Progress,
+    ) -> Result<TerrainRenderer> {
+        let device = &gpu.device;
+        let limits = device.limits();
+        let posts = terrain.grid().size();
+        let tiling = match options.tile_posts {
+            Some(t) => {
+                let t = HeightTiling::with_tile(posts, t);
+                if t.tile_posts > limits.max_texture_dimension_2d || t.layers() > limits.max_texture_array_layers {
+                    return Err(crate::Error::InvalidArgument(format!(
+                        "heights tile of {} posts needs {} layers, over the GPU's limits",
+                        t.tile_posts,
+                        t.layers()
+                    )));
+                }
+                t
+            }
+            None => HeightTiling::plan(posts, limits.max_texture_dimension_2d, limits.max_texture_array_layers)?,
+        };
+        let heights = GpuHeights::upload(device, &gpu.queue, terrain, tiling, progress);
+        let h = terrain.header();
+        let shade = ShadeParams::for_terrain(h.spacing_m, posts, h.z_min, h.z_max);
+
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("terrain.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(TERRAIN_WGSL.into()),
+        });
+        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("relief frame"),
+            size: FRAME_UNIFORM_BYTES,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bind_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("relief frame"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: wgpu::BufferSize::new(FRAME_UNIFORM_BYTES),
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("relief frame"),
+            layout: &bind_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&heights.view) },
+            ],
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("relief"),
+            bind_group_layouts: &[Some(&bind_layout)],
+            immediate_size: 0,
+        });
+
+        let depth = |write: bool, compare: wgpu::CompareFunction| {
+            Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(write),
+                depth_compare: Some(compare),
+                stencil: wgpu::StencilState::default(),
+                // Triangles are pushed back (reversed z: towards 0) by their depth slope, so
+                // the wireframe drawn over them wins the depth test even at grazing angles.
+                bias: if write {
+                    wgpu::DepthBiasState { constant: -4, slope_scale: -1.5, clamp: 0.0 }
+                } else {
+                    wgpu::DepthBiasState::default()
+                },
+            })
+        };
+        let colour_target = [Some(wgpu::ColorTargetState {
+            format: colour_format,
+            blend: None,
+            write_mask: wgpu::ColorWrites::ALL,
+        })];
+        let probe_targets = [0; 2].map(|_| {
+            Some(wgpu::ColorTargetState { format: PROBE_FORMAT, blend: None, write_mask: wgpu::ColorWrites::ALL })
+        });
+        let pipeline = |label: &str,
+                        vs: &str,
+                        buffers: &[Option<wgpu::VertexBufferLayout>],
+                        topology: wgpu::PrimitiveTopology,
+                        depth_stencil: Option<wgpu::DepthStencilState>,
+                        fs: &str,
+                        targets: &[Option<wgpu::ColorTargetState>]| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(label),
+                layout: Some(&layout),
+                vertex: wgpu::VertexState {
+                    module: &module,
+                    entry_point: Some(vs),
+                    compilation_options: Default::default(),
+                    buffers,
+                },
+                primitive: wgpu::PrimitiveState {
+                    topology,
+                    strip_index_format: None,
+                    front_face: wgpu::FrontFace::Cw,
+                    // Terrain can be seen from below (an eye under a cliff): draw both faces.
+                    cull_mode: None,
+                    unclipped_depth: false,
+                    polygon_mode: wgpu::PolygonMode::Fill,
+                    conservative: false,
+                },
+                depth_stencil,
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &module,
+                    entry_point: Some(fs),
+                    compilation_options: Default::default(),
+                    targets,
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        use wgpu::CompareFunction::{Equal, Greater, GreaterEqual};
+        use wgpu::PrimitiveTopology::{LineStrip, TriangleList, TriangleStrip};
+        let (v1, v2) = (VERTEX_BYTES, 2 * VERTEX_BYTES);
+        let (m1, m2) = (MORPH_BYTES, 2 * MORPH_BYTES);
+        let terrain_pipeline = pipeline(
+            "terrain",
+            "vs_terrain",
+            &[Some(grid_layout(v1))],
+            TriangleStrip,
+            depth(true, Greater),
+            "fs_terrain",
+            &colour_target,
+        );
+        let terrain_morph_pipeline = pipeline(
+            "terrain morph",
+            "vs_terrain_morph",
+            &[Some(grid_layout(v1)), Some(morph_layout(m1))],
+            TriangleStrip,
+            depth(true, Greater),
+            "fs_terrain",
+            &colour_target,
+        );
+        let wire_pipelines = [v1, v2].map(|stride| {
+            pipeline(
+                "wire",
+                "vs_wire",
+                &[Some(grid_layout(stride))],
+                LineStrip,
+                depth(false, GreaterEqual),
+                "fs_wire",
+                &colour_target,
+            )
+        });
+        let wire_morph_pipelines = [(v1, m1), (v2, m2)].map(|(sv, sm)| {
+            pipeline(
+                "wire morph",
+                "vs_wire_morph",
+                &[Some(grid_layout(sv)), Some(morph_layout(sm))],
+                LineStrip,
+                depth(false, GreaterEqual),
+                "fs_wire",
+                &colour_target,
+            )
+        });
+        // The sky fills what the terrain left at the cleared (infinite) depth.
+        let sky_pipeline = pipeline("sky", "vs_sky", &[], TriangleList, depth(false, Equal), "fs_sky", &colour_target);
+        let probe_pipeline = pipeline(
+            "probe",
+            "vs_terrain",
+            &[Some(grid_layout(v1))],
+            TriangleStrip,
+            depth(true, Greater),
+            "fs_probe",
+            &probe_targets,
+        );
+
+        let vertices = VertexBuffer::new(device, "relief strip", 1 << 20);
+        let morph = VertexBuffer::new(device, "relief strip morph", 1 << 20);
+        Ok(TerrainRenderer {
+            heights,
+            shade,
+            valid_window: {
+                let [x0, y0, x1, y1] = h.valid_window;
+                [x0, y0, x1 - 1, y1 - 1]
+            },
+            uniform,
+            bind_group,
+            terrain_pipeline,
+            terrain_morph_pipeline,
+            wire_pipelines,
+            wire_morph_pipelines,
+            sky_pipeline,
+            probe_pipeline,
+            vertices,
+            morph,
+            strip_len: 0,
+            strip_morph: false,
+            triangles: 0,
+            last_upload_bytes: 0,
+        })
+    }
+
+    pub fn tiling(&self) -> HeightTiling {
+        self.heights.tiling
+    }
+
+    /// GPU memory taken by the heights, bytes.
+    pub fn heights_bytes(&self) -> u64 {
+        self.heights.tiling.bytes()
+    }
+
+    pub fn shade_params(&self) -> &ShadeParams {
+        &self.shade
+    }
+
+    /// Uploads a new strip (and its geomorph values, if any); returns the bytes sent.
+    pub fn upload_strip(&mut self, gpu: &Gpu, strip: &Strip) -> u64 {
+        let vbytes: &[u8] = bytemuck::cast_slice(&strip.vertices);
+        self.vertices.write(&gpu.device, &gpu.queue, vbytes);
+        let morph = !strip.morph.is_empty() && strip.morph.len() == strip.vertices.len();
+        let mbytes: &[u8] = if morph { bytemuck::cast_slice(&strip.morph) } else { &[] };
+        self.morph.write(&gpu.device, &gpu.queue, mbytes);
+        self.strip_len = u32::try_from(strip.vertices.len()).unwrap_or(u32::MAX);
+        self.strip_morph = morph;
+        self.triangles = strip.triangle_counts().0;
+        self.last_upload_bytes = (vbytes.len() + mbytes.len()) as u64;
+        self.last_upload_bytes
+    }
+
+    /// Bytes of the last strip upload.
+    pub fn last_upload_bytes(&self) -> u64 {
+        self.last_upload_bytes
+    }
+
+    pub fn strip_len(&self) -> u32 {
+        self.strip_len
+    }
+
+    /// Non-degenerate triangles of the current strip.
+    pub fn triangles(&self) -> u64 {
+        self.triangles
+    }
+
+    /// The frame uniform for `camera` with near plane `near_m`.
+    fn frame_uniform(&self, camera: &Camera, near_m: f64, flags: u32) -> FrameUniform {
+        let (_, up, forward) = camera.basis();
+        let view = glam::camera::rh::view::look_to_mat4(Vec3::ZERO, forward.as_vec3(), up.as_vec3());
+        let aspect = camera.width_px as f32 / camera.height_px as f32;
+        let proj = glam::camera::rh::proj::directx::perspective_infinite_reverse(
+            camera.fov_y_deg().to_radians() as f32,
+            aspect,
+            near_m as f32,
+        );
+        let clip_from_rel: Mat4 = proj * view;
+        let s = &self.shade;
+        let t = self.heights.tiling;
+        let e = camera.eye_in_world.as_vec3();
+        FrameUniform {
+            clip_from_rel: clip_from_rel.to_cols_array_2d(),
+            rel_from_clip: clip_from_rel.inverse().to_cols_array_2d(),
+            eye_in_world: [e.x, e.y, e.z, 1.0],
+            world_from_grid: [s.spacing_m[0] as f32, s.spacing_m[1] as f32, (s.posts - 1) as f32, 0.0],
+            z_min: s.z_min as f32,
+            z_land_lo: s.z_land_lo as f32,
+            z_max: s.z_max as f32,
+            fog_distance_m: s.fog_distance_m as f32,
+            sun_dir: [s.sun_dir.x as f32, s.sun_dir.y as f32, s.sun_dir.z as f32, 0.0],
+            tile_posts: t.tile_posts,
+            tiles_per_row: t.tiles_per_row,
+            posts: t.posts,
+            flags,
+            wire_colour: [0.02, 0.02, 0.03, 1.0],
+            valid_window: self.valid_window.map(|v| v as f32),
+        }
+    }
+
+    /// Records a frame: terrain, optional wireframe, then sky, into `colour` and `depth` (both
+    /// cleared). Returns the uniform bytes written.
+    pub fn encode(
+        &self,
+        gpu: &Gpu,
+        encoder: &mut wgpu::CommandEncoder,
+        colour: &wgpu::TextureView,
+        depth: &wgpu::TextureView,
+        camera: &Camera,
+        near_m: f64,
+        style: DrawStyle,
+    ) -> u64 {
+        gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.frame_uniform(camera, near_m, 0)));
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("relief frame"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: colour,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+            })],
+            depth_stencil_attachment: Some(depth_clear(depth)),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_bind_group(0, &self.bind_group, &[]);
+        let n = self.strip_len;
+        if n >= 3 {
+            let vb = self.vertices.buffer.slice(..n as u64 * VERTEX_BYTES);
+            let mb = self.morph.buffer.slice(..if self.strip_morph { n as u64 * MORPH_BYTES } else { 0 });
+            if self.strip_morph {
+                pass.set_pipeline(&self.terrain_morph_pipeline);
+                pass.set_vertex_buffer(1, mb);
+            } else {
+                pass.set_pipeline(&self.terrain_pipeline);
+            }
+            pass.set_vertex_buffer(0, vb);
+            pass.draw(0..n, 0..1);
+            if style.wireframe {
+                let pipes = if self.strip_morph { &self.wire_morph_pipelines } else { &self.wire_pipelines };
+                // Edges (i, i+1): one line strip over all vertices.
+                pass.set_pipeline(&pipes[0]);
+                pass.draw(0..n, 0..1);
+                // Edges (i, i+2): line strips over the even and the odd vertices (stride 2).
+                pass.set_pipeline(&pipes[1]);
+                for start in 0..2u64 {
+                    let count = ((n as u64 - start).div_ceil(2)) as u32;
+                    pass.set_vertex_buffer(0, self.vertices.buffer.slice(start * VERTEX_BYTES..n as u64 * VERTEX_BYTES));
+                    if self.strip_morph {
+                        pass.set_vertex_buffer(1, self.morph.buffer.slice(start * MORPH_BYTES..n as u64 * MORPH_BYTES));
+                    }
+                    pass.draw(0..count, 0..1);
+                }
+            }
+        }
+        pass.set_pipeline(&self.sky_pipeline);
+        pass.draw(0..3, 0..1);
+        FRAME_UNIFORM_BYTES
+    }
+
+    /// Records the probe pass (what `fs_terrain` computes, as floats) into two [`PROBE_FORMAT`]
+    /// targets: (grid x, grid y, surface height, mesh height) and what `probe` asks for. Pixels
+    /// the terrain does not cover keep (0, 0, 0, 0). Submit before recording another probe: the
+    /// uniform is written at submission.
+    pub fn encode_probe(
+        &self,
+        gpu: &Gpu,
+        encoder: &mut wgpu::CommandEncoder,
+        targets: [&wgpu::TextureView; 2],
+        depth: &wgpu::TextureView,
+        camera: &Camera,
+        near_m: f64,
+        probe: Probe,
+    ) {
+        let uniform = self.frame_uniform(camera, near_m, probe as u32);
+        gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&uniform));
+        let attachments = targets.map(|view| {
+            Some(wgpu::RenderPassColorAttachment {
+                view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    store: wgpu::StoreOp::Store,
+                },
+            })
+        });
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("relief probe"),
+            color_attachments: &attachments,
+            depth_stencil_attachment: Some(depth_clear(depth)),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        if self.strip_len >= 3 {
+            pass.set_bind_group(0, &self.bind_group, &[]);
+            pass.set_pipeline(&self.probe_pipeline);
+            pass.set_vertex_buffer(0, self.vertices.buffer.slice(..self.strip_len as u64 * VERTEX_BYTES));
+            pass.draw(0..self.strip_len, 0..1);
+        }
+    }
+}
+
+fn depth_clear(view: &wgpu::TextureView) -> wgpu::RenderPassDepthStencilAttachment<'_> {
+    wgpu::RenderPassDepthStencilAttachment {
+        view,
+        // Reversed z: 0 is infinitely far.
+        depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Store }),
+        stencil_ops: None,
+    }
+}
+
+/// A near plane for an eye: a quarter of a lower bound on its distance to the terrain (so the
+/// ground is never clipped), between 5 cm and 1 km. Reversed-z f32 depth keeps precision to the
+/// horizon whatever this is.
+pub fn near_plane_m(terrain: &TerrainFile, eye_in_world: DVec3) -> f64 {
+    let h = terrain.header();
+    let last = terrain.grid().max_coord();
+    let (ex, ey) = (eye_in_world.x / h.spacing_m[0], eye_in_world.y / h.spacing_m[1]);
+    let above_all = eye_in_world.z - h.z_max;
+    let bound = if ex >= 0.0 && ey >= 0.0 && ex <= last as f64 && ey <= last as f64 {
+        // Above the grid: height over the highest post of the cell around the eye.
+        let (x0, y0) = ((ex.floor() as u32).min(last - 1), (ey.floor() as u32).min(last - 1));
+        let ground = [(0, 0), (1, 0), (0, 1), (1, 1)]
+            .iter()
+            .map(|&(dx, dy)| terrain.record_at(x0 + dx, y0 + dy).z as f64)
+            .fold(f64::MIN, f64::max);
+        (eye_in_world.z - ground).max(above_all)
+    } else {
+        // Beside the grid: at least the horizontal distance to its edge.
+        let dx = (-ex).max(ex - last as f64).max(0.0) * h.spacing_m[0];
+        let dy = (-ey).max(ey - last as f64).max(0.0) * h.spacing_m[1];
+        dx.hypot(dy).max(above_all)
+    };
+    (bound * 0.25).clamp(0.05, 1000.0)
+}

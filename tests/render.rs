@@ -1,0 +1,308 @@
+//! Rendering: WGSL validation, the GPU against the CPU reference of the shading, golden images of
+//! real DEMs, and per-frame upload sizes. Runs on any Vulkan adapter; CI uses Mesa's lavapipe
+//! (installed by tools/test.sh). Regenerate the golden images with `RELIEF_BLESS=1`.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, OnceLock};
+
+use common::dem;
+use glam::DVec3;
+use relief::camera::Camera;
+use relief::convert::{convert, ConvertOptions};
+use relief::fly::{render_still, StillReport};
+use relief::format::TerrainFile;
+use relief::layout::LayoutKind;
+use relief::progress::Progress;
+use relief::refine::{RefineOptions, Refiner, Strip};
+use relief::render::offscreen::ProbeTargets;
+use relief::render::shade::{self, ShadeParams};
+use relief::render::terrain::{near_plane_m, Probe, FRAME_UNIFORM_BYTES, MORPH_BYTES, VERTEX_BYTES};
+use relief::render::{DrawStyle, Gpu, RendererOptions, TerrainRenderer};
+
+/// One device for the whole test binary (software Vulkan starts slowly), used by one test at a
+/// time.
+fn gpu() -> std::sync::MutexGuard<'static, Gpu> {
+    static GPU: OnceLock<Mutex<Gpu>> = OnceLock::new();
+    GPU.get_or_init(|| {
+        Mutex::new(Gpu::headless().unwrap_or_else(|e| {
+            panic!("{e}\nthe rendering tests need a Vulkan adapter: run `bash tools/test.sh`, which installs lavapipe")
+        }))
+    })
+    .lock()
+    .unwrap_or_else(|p| p.into_inner())
+}
+
+/// Real DEMs converted once per test binary: (file stem, spacing override).
+fn terrain(name: &str) -> Arc<TerrainFile> {
+    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
+    static CACHE: OnceLock<Mutex<Vec<(String, Arc<TerrainFile>)>>> = OnceLock::new();
+    let dir = DIR.get_or_init(|| tempfile::tempdir().unwrap());
+    let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
+    let mut cache = cache.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some((_, t)) = cache.iter().find(|(n, _)| n == name) {
+        return t.clone();
+    }
+    let out = dir.path().join(format!("{name}.relief"));
+    let mut opts = ConvertOptions::new(LayoutKind::Interleaved);
+    opts.progress = Progress::hidden();
+    if name.starts_with("fuji") {
+        // The Terrain-RGB tile carries no georeferencing: 30 m posts give it a plausible shape.
+        opts.spacing_m = Some([30.0, 30.0]);
+    }
+    convert(&dem(name), &out, &opts).unwrap();
+    let t = Arc::new(TerrainFile::open(&out).unwrap());
+    cache.push((name.to_string(), t.clone()));
+    t
+}
+
+fn camera(eye: [f64; 3], look: [f64; 3], w: u32, h: u32) -> Camera {
+    Camera::new(DVec3::from(eye), DVec3::from(look), DVec3::Z, 60.0, w, h).unwrap()
+}
+
+#[test]
+fn every_wgsl_file_validates_with_naga() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("shaders");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "wgsl"))
+        .collect();
+    files.sort();
+    assert!(!files.is_empty(), "no WGSL in {}", dir.display());
+    let validate = |src: &str| -> Result<(), String> {
+        let module = naga::front::wgsl::parse_str(src).map_err(|e| e.emit_to_string(src))?;
+        naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::empty())
+            .validate(&module)
+            .map_err(|e| format!("{e:?}"))?;
+        Ok(())
+    };
+    for f in &files {
+        let src = std::fs::read_to_string(f).unwrap();
+        if let Err(e) = validate(&src) {
+            panic!("{}: invalid WGSL:\n{e}", f.display());
+        }
+    }
+    // The check itself catches errors: a type error and an undeclared binding.
+    assert!(validate("fn f() -> f32 { return 1u; }").is_err());
+    assert!(validate("@fragment fn f() -> @location(0) vec4<f32> { return textureLoad(t, vec2<u32>(0u), 0); }").is_err());
+}
+
+/// The probe pass writes what `fs_terrain` computes; the CPU reference (`render::shade`) must
+/// agree at every covered pixel. Small tiles (64 posts, 81 layers) make the shader cross tile
+/// borders everywhere, and the default single-layer tiling must give the same bits.
+#[test]
+fn gpu_shading_matches_the_cpu_reference_across_tiles() {
+    let gpu = gpu();
+    let t = terrain("zurich_25m_i16.tif");
+    let cam = camera([2000.0, -1500.0, 1500.0], [5000.0, 4500.0, 500.0], 256, 160);
+    let mut strip = Strip::new();
+    Refiner::new(1).unwrap().refine_file(&t, &cam, &RefineOptions { tolerance_px: 2.0, ..Default::default() }, &mut strip);
+    let probe = |tile_posts: Option<u32>, what: Probe| {
+        let mut r = TerrainRenderer::new(
+            &gpu,
+            &t,
+            relief::render::offscreen::OFFSCREEN_FORMAT,
+            RendererOptions { tile_posts },
+            Progress::hidden(),
+        )
+        .unwrap();
+        r.upload_strip(&gpu, &strip);
+        let targets = ProbeTargets::new(&gpu, cam.width_px, cam.height_px);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        r.encode_probe(
+            &gpu,
+            &mut enc,
+            [&targets.views[0], &targets.views[1]],
+            &targets.depth_view,
+            &cam,
+            near_plane_m(&t, cam.eye_in_world),
+            what,
+        );
+        gpu.queue.submit([enc.finish()]);
+        (r.tiling(), targets.read(&gpu, 0).unwrap(), targets.read(&gpu, 1).unwrap())
+    };
+    let (tiling, pos, normal) = probe(Some(64), Probe::Normal);
+    assert_eq!((tiling.tile_posts, tiling.layers()), (64, 81));
+    let (_, pos2, colour) = probe(Some(64), Probe::Colour);
+    let (one, pos1, normal1) = probe(None, Probe::Normal);
+    assert_eq!(one.layers(), 1);
+    assert_eq!(pos, pos1, "tiling changed the surface");
+    assert_eq!(normal, normal1, "tiling changed the normals");
+    assert_eq!(pos, pos2);
+
+    let h = t.header();
+    let params = ShadeParams::for_terrain(h.spacing_m, t.grid().size(), h.z_min, h.z_max);
+    let last = t.grid().max_coord() as i32;
+    let height = |x: i32, y: i32| t.record_at(x.clamp(0, last) as u32, y.clamp(0, last) as u32).z as f64;
+    let (mut covered, mut worst_h, mut worst_n, mut worst_c) = (0, 0f64, 0f64, 0f64);
+    for k in 0..pos.len() {
+        if normal[k][3] != 1.0 {
+            continue; // sky, or padding outside the DEM
+        }
+        covered += 1;
+        let [gx, gy, h_gpu, mesh_z] = pos[k].map(|v| v as f64);
+        let s = shade::surface_at(&params, &height, [gx, gy]);
+        worst_h = worst_h.max((s.height_m - h_gpu).abs());
+        let n_gpu = DVec3::new(normal[k][0] as f64, normal[k][1] as f64, normal[k][2] as f64);
+        worst_n = worst_n.max((s.normal - n_gpu).length());
+        let rel = DVec3::new(gx * h.spacing_m[0], gy * h.spacing_m[1], mesh_z) - cam.eye_in_world;
+        let c = shade::shade(&params, s, rel);
+        let c_gpu = DVec3::new(colour[k][0] as f64, colour[k][1] as f64, colour[k][2] as f64);
+        worst_c = worst_c.max((c - c_gpu).abs().max_element());
+    }
+    assert!(covered > pos.len() / 3, "terrain covers only {covered} of {} pixels", pos.len());
+    // f32 on the GPU against f64 here: heights of ~900 m interpolated in f32 are good to ~1e-4
+    // relative; normals and colours to a few 1e-4.
+    assert!(worst_h < 0.02, "height differs by {worst_h} m");
+    assert!(worst_n < 2e-3, "normal differs by {worst_n}");
+    assert!(worst_c < 2e-3, "colour differs by {worst_c}");
+}
+
+/// A golden view: DEM, camera, tolerance, style.
+struct Golden {
+    name: &'static str,
+    dem: &'static str,
+    eye: [f64; 3],
+    look: [f64; 3],
+    tolerance_px: f64,
+    wireframe: bool,
+    geomorph: Option<f64>,
+}
+
+const GOLDEN: [Golden; 5] = [
+    Golden {
+        name: "zurich",
+        dem: "zurich_25m_i16.tif",
+        eye: [2000.0, -1500.0, 1500.0],
+        look: [5000.0, 4500.0, 500.0],
+        tolerance_px: 1.0,
+        wireframe: false,
+        geomorph: None,
+    },
+    Golden {
+        name: "zurich_wire_geomorph",
+        dem: "zurich_25m_i16.tif",
+        eye: [2000.0, -1500.0, 1500.0],
+        look: [5000.0, 4500.0, 500.0],
+        tolerance_px: 4.0,
+        wireframe: true,
+        geomorph: Some(2.0),
+    },
+    Golden {
+        name: "fuji",
+        dem: "fuji_terrain_rgb.png",
+        eye: [7680.0, -6000.0, 3000.0],
+        look: [7680.0, 7680.0, 2000.0],
+        tolerance_px: 1.0,
+        wireframe: false,
+        geomorph: None,
+    },
+    Golden {
+        name: "lidar",
+        dem: "lidar_1m_f32.tif",
+        eye: [-60.0, -60.0, 470.0],
+        look: [250.0, 250.0, 385.0],
+        tolerance_px: 1.0,
+        wireframe: false,
+        geomorph: None,
+    },
+    Golden {
+        name: "etopo_bathymetry",
+        dem: "etopo20_world.tif",
+        eye: [12.0e6, -2.0e6, 4.0e6],
+        look: [12.0e6, 9.0e6, -3.0e6],
+        tolerance_px: 1.0,
+        wireframe: false,
+        geomorph: None,
+    },
+];
+
+fn render_golden(g: &Golden, gpu: &Gpu) -> (image::RgbaImage, StillReport) {
+    let t = terrain(g.dem);
+    let cam = camera(g.eye, g.look, 320, 200);
+    let options = RefineOptions { tolerance_px: g.tolerance_px, morph_ratio: g.geomorph, ..Default::default() };
+    render_still(gpu, &t, &cam, &options, DrawStyle { wireframe: g.wireframe }, 1, Progress::hidden()).unwrap()
+}
+
+/// Tolerance: lavapipe renders deterministically for one Mesa/LLVM build, but another build (or
+/// a GPU) may round the shading differently by a level or two and break ties at triangle and
+/// wireframe edges differently, which changes isolated pixels a lot. So: the mean absolute
+/// channel difference stays under 1.5 levels of 255, and at most 1% of pixels differ by more
+/// than 24 levels in any channel. A wrong ramp, light, fog, tiling or geometry moves far more.
+fn compare(got: &image::RgbaImage, want: &image::RgbaImage) -> Result<(), String> {
+    if got.dimensions() != want.dimensions() {
+        return Err(format!("size {:?}, golden {:?}", got.dimensions(), want.dimensions()));
+    }
+    let (mut sum, mut big) = (0u64, 0usize);
+    for (a, b) in got.pixels().zip(want.pixels()) {
+        let d = (0..3).map(|c| (a[c] as i32 - b[c] as i32).unsigned_abs()).max().unwrap_or(0);
+        sum += (0..3).map(|c| (a[c] as i32 - b[c] as i32).unsigned_abs() as u64).sum::<u64>();
+        big += (d > 24) as usize;
+    }
+    let pixels = (got.width() * got.height()) as f64;
+    let mean = sum as f64 / (3.0 * pixels);
+    let frac_big = big as f64 / pixels;
+    if mean > 1.5 || frac_big > 0.01 {
+        return Err(format!("mean difference {mean:.3} levels, {:.3}% of pixels off by > 24", 100.0 * frac_big));
+    }
+    Ok(())
+}
+
+#[test]
+fn golden_images_of_real_dems() {
+    let gpu = gpu();
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden");
+    let bless = std::env::var_os("RELIEF_BLESS").is_some();
+    let mut failures = Vec::new();
+    for g in &GOLDEN {
+        let (got, report) = render_golden(g, &gpu);
+        assert!(report.triangles > 0, "{}: nothing drawn", g.name);
+        let path = dir.join(format!("{}.png", g.name));
+        if bless {
+            got.save(&path).unwrap();
+            continue;
+        }
+        let want = match image::open(&path) {
+            Ok(i) => i.to_rgba8(),
+            Err(e) => panic!("{}: {e} (create the golden images with RELIEF_BLESS=1)", path.display()),
+        };
+        if let Err(e) = compare(&got, &want) {
+            let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("{}.actual.png", g.name));
+            got.save(&out).unwrap();
+            failures.push(format!("{}: {e} (actual image: {})", g.name, out.display()));
+        }
+    }
+    assert!(failures.is_empty(), "golden images differ:\n{}", failures.join("\n"));
+}
+
+#[test]
+fn the_golden_comparison_catches_real_changes() {
+    let gpu = gpu();
+    let (img, _) = render_golden(&GOLDEN[0], &gpu);
+    assert!(compare(&img, &img).is_ok());
+    // The same view at another tolerance, and shifted by a few pixels, must both fail.
+    let coarse = Golden { tolerance_px: 64.0, ..GOLDEN[0] };
+    let (other, _) = render_golden(&coarse, &gpu);
+    assert!(compare(&other, &img).is_err(), "τ = 64 px looked the same as τ = 1 px");
+    let moved = Golden { eye: [2060.0, -1500.0, 1500.0], ..GOLDEN[0] };
+    let (shifted, _) = render_golden(&moved, &gpu);
+    assert!(compare(&shifted, &img).is_err(), "a moved eye looked the same");
+}
+
+/// Per-frame uploads are the strip (8 bytes a vertex, 16 with geomorphing) plus the frame
+/// uniform, whatever the terrain's size.
+#[test]
+fn a_frame_uploads_the_strip_not_the_terrain() {
+    let gpu = gpu();
+    for g in [&GOLDEN[0], &GOLDEN[1], &GOLDEN[4]] {
+        let (_, r) = render_golden(g, &gpu);
+        let per_vertex = VERTEX_BYTES + if g.geomorph.is_some() { MORPH_BYTES } else { 0 };
+        assert_eq!(r.upload_bytes, r.strip_len as u64 * per_vertex + FRAME_UNIFORM_BYTES, "{}", g.name);
+        let t = terrain(g.dem);
+        let terrain_bytes = t.grid().vertices() * 4;
+        assert_eq!(r.heights_gpu_bytes, t.grid().size() as u64 * t.grid().size() as u64 * 4);
+        assert!(r.upload_bytes * 10 < terrain_bytes, "{}: {} bytes per frame", g.name, r.upload_bytes);
+    }
+}
