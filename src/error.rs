@@ -32,6 +32,9 @@ pub enum Error {
     Checksum { path: PathBuf, which: &'static str, stored: u64, computed: u64 },
     #[error("{}: grid too large: {width} x {height} needs more than 2^{max_n} + 1 posts per side", path.display())]
     GridTooLarge { path: PathBuf, width: u64, height: u64, max_n: u32 },
+    /// A flight-path file (`relief path`) that could not be parsed or holds an unusable frame.
+    #[error("{}: {problem}", path.display())]
+    BadPath { path: PathBuf, problem: String },
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
     /// No usable GPU, or the GPU refused a request (creation, limits, readback).
@@ -55,6 +58,11 @@ impl Error {
     /// A DEM that could be opened but whose content is wrong.
     pub fn bad_dem(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
         Error::BadDem { path: path.into(), problem: problem.into() }
+    }
+
+    /// A flight-path file whose content is wrong.
+    pub fn bad_path(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
+        Error::BadPath { path: path.into(), problem: problem.into() }
     }
 }
 

@@ -17,6 +17,7 @@ pub mod camera;
 pub mod cancel;
 pub mod convert;
 pub mod fill;
+pub mod flight;
 pub mod fly;
 pub mod format;
 pub mod inspect;

@@ -14,6 +14,7 @@ use glam::DVec3;
 use relief::camera::Camera;
 use relief::convert::{convert, ConvertOptions};
 use relief::dem::DemFormat;
+use relief::flight::{flyover, orbit, FlyoverOptions, OrbitOptions};
 use relief::format::TerrainFile;
 use relief::inspect;
 use relief::layout::LayoutKind;
@@ -287,6 +288,62 @@ enum Command {
         /// No progress bars.
         #[arg(long, short)]
         quiet: bool,
+    },
+    /// Generate a camera flight path over a terrain and write it as JSON.
+    ///
+    /// World coordinates are metres with the origin at the grid's south-west corner, x east, y
+    /// north, z up (height in metres). The file is a JSON array with one frame per line:
+    /// [{"eye":[X,Y,Z],"look":[X,Y,Z]}, ...]. Prints the frame count, the path's length and the
+    /// least clearance of an eye above the terrain, in metres.
+    Path {
+        #[command(subcommand)]
+        kind: PathCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum PathCommand {
+    /// A low-altitude straight fly-over along the DEM's diagonal, south-west to north-east (5%
+    /// inside the corners), climbing over the highest terrain within 3% of the diagonal around the
+    /// eye, looking ahead 15° below the horizon.
+    Flyover {
+        /// Terrain file (.relief).
+        file: PathBuf,
+        /// Number of frames (at least 1).
+        #[arg(long, value_name = "N")]
+        frames: usize,
+        /// Flight-path file to write (replaced atomically if it exists).
+        #[arg(long, value_name = "PATH.json")]
+        out: PathBuf,
+        /// Least height of the eye above the highest terrain around it, metres [default: 2% of
+        /// the DEM's diagonal].
+        #[arg(long, value_name = "M")]
+        clearance: Option<f64>,
+        /// Print the summary as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// A circle around the DEM's centre at constant altitude, one full turn counter-clockwise from
+    /// due east, looking at the centre (at the terrain's height there).
+    Orbit {
+        /// Terrain file (.relief).
+        file: PathBuf,
+        /// Number of frames (at least 1), evenly spaced over the turn.
+        #[arg(long, value_name = "N")]
+        frames: usize,
+        /// Flight-path file to write (replaced atomically if it exists).
+        #[arg(long, value_name = "PATH.json")]
+        out: PathBuf,
+        /// Horizontal distance of the eye from the centre, metres [default: 0.6 × half the DEM's
+        /// diagonal].
+        #[arg(long, value_name = "M")]
+        radius: Option<f64>,
+        /// Eye height (world z), metres [default: highest terrain + 0.3 × half the DEM's diagonal].
+        #[arg(long, value_name = "M", allow_hyphen_values = true)]
+        altitude: Option<f64>,
+        /// Print the summary as JSON on stdout.
+        #[arg(long)]
+        json: bool,
     },
 }
 
@@ -590,6 +647,45 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     fmt_bytes(r.upload_bytes),
                     fmt_bytes(r.heights_gpu_bytes),
                     r.adapter
+                );
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Path { kind } => {
+            let (file, out, json) = match &kind {
+                PathCommand::Flyover { file, out, json, .. } | PathCommand::Orbit { file, out, json, .. } => {
+                    (file, out, *json)
+                }
+            };
+            let terrain = TerrainFile::open(file)?;
+            let path = match &kind {
+                PathCommand::Flyover { frames, clearance, .. } => {
+                    flyover(&terrain, &FlyoverOptions { frames: *frames, clearance_m: *clearance })?
+                }
+                PathCommand::Orbit { frames, radius, altitude, .. } => {
+                    orbit(&terrain, &OrbitOptions { frames: *frames, radius_m: *radius, altitude_m: *altitude })?
+                }
+            };
+            path.save(out)?;
+            let s = path.summary(&terrain);
+            if json {
+                let j = serde_json::json!({
+                    "frames": s.frames,
+                    "length_m": s.length_m,
+                    "min_clearance_m": s.min_clearance_m,
+                    "out": out.display().to_string(),
+                });
+                println!("{}", serde_json::to_string_pretty(&j)?);
+            } else {
+                let clearance = match s.min_clearance_m {
+                    Some(c) => format!("{c:.1} m"),
+                    None => "n/a (no eye over the grid)".to_string(),
+                };
+                println!(
+                    "{}: {} frames, length {:.1} m, min clearance above terrain {clearance}",
+                    out.display(),
+                    s.frames,
+                    s.length_m
                 );
             }
             Ok(ExitCode::SUCCESS)

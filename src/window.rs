@@ -27,7 +27,7 @@ use crate::mem;
 use crate::progress::Progress;
 use crate::refine::RefineOptions;
 use crate::render::offscreen::Offscreen;
-use crate::render::terrain::{near_plane_m, DEPTH_FORMAT};
+use crate::render::terrain::near_plane_m;
 use crate::render::{DrawStyle, Gpu, RendererOptions, TerrainRenderer};
 
 /// Settings of an interactive flight.
@@ -194,6 +194,7 @@ impl App {
             desired_maximum_frame_latency: 2,
             alpha_mode: caps.alpha_modes.first().copied().unwrap_or(wgpu::CompositeAlphaMode::Auto),
             view_formats: vec![],
+            color_space: wgpu::SurfaceColorSpace::Auto,
         };
         surface.configure(&gpu.device, &config);
         let depth_view = crate::render::offscreen::depth_target(&gpu, config.width, config.height)
@@ -272,7 +273,7 @@ impl ApplicationHandler for App {
                 s.depth_view = crate::render::offscreen::depth_target(&s.gpu, s.config.width, s.config.height)
                     .create_view(&Default::default());
             }
-            WindowEvent::KeyboardInput { event, .. } if !consumed || !s.egui_ctx.wants_keyboard_input() => {
+            WindowEvent::KeyboardInput { event, .. } if !consumed || !s.egui_ctx.egui_wants_keyboard_input() => {
                 if let PhysicalKey::Code(code) = event.physical_key {
                     if event.state == ElementState::Pressed {
                         if !event.repeat {
@@ -423,7 +424,7 @@ impl State {
         self.draw_panel(&mut encoder, &view, o);
         self.gpu.queue.submit([encoder.finish()]);
         self.window.pre_present_notify();
-        frame.present();
+        self.gpu.queue.present(frame);
         self.gpu.check()
     }
 
@@ -467,8 +468,10 @@ impl State {
         let ppp = output.pixels_per_point;
         let jobs = ctx.tessellate(output.shapes, ppp);
         let screen = egui_wgpu::ScreenDescriptor { size_in_pixels: [self.config.width, self.config.height], pixels_per_point: ppp };
-        for (id, delta) in &output.textures_delta.set {
-            self.egui_renderer.update_texture(&self.gpu.device, &self.gpu.queue, *id, delta);
+        for (id, deltas) in &output.textures_delta.set {
+            for delta in deltas {
+                self.egui_renderer.update_texture(&self.gpu.device, &self.gpu.queue, *id, delta);
+            }
         }
         let extra = self.egui_renderer.update_buffers(&self.gpu.device, &self.gpu.queue, encoder, &jobs, &screen);
         if !extra.is_empty() {
