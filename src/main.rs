@@ -263,6 +263,15 @@ enum Command {
         /// Directory for screenshots and recorded paths (window).
         #[arg(long, value_name = "DIR", default_value = ".")]
         output_dir: PathBuf,
+        /// Window: start at this eye position "X,Y,Z", metres (with --look).
+        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, requires = "look", conflicts_with = "path")]
+        eye: Option<String>,
+        /// Window: start looking at this point "X,Y,Z", metres (with --eye).
+        #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, requires = "eye")]
+        look: Option<String>,
+        /// Window: close after this many frames (scripted runs).
+        #[arg(long, value_name = "N", conflicts_with = "path")]
+        exit_after_frames: Option<u64>,
         /// No progress bars.
         #[arg(long, short)]
         quiet: bool,
@@ -547,6 +556,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             threads,
             wireframe,
             output_dir,
+            eye,
+            look,
+            exit_after_frames,
             quiet,
         } => {
             let refine = refine_options(tolerance, metric, no_cull, geomorph)?;
@@ -571,6 +583,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     threads,
                     sync: refinement.as_deref() == Some("sync"),
                     output_dir,
+                    start: match (eye, look) {
+                        (Some(e), Some(l)) => Some((parse_vec3("--eye", &e)?, parse_vec3("--look", &l)?)),
+                        _ => None,
+                    },
+                    exit_after_frames,
                     progress: progress(quiet),
                 };
                 fly_window(terrain, options)?;

@@ -43,6 +43,10 @@ pub struct WindowOptions {
     pub sync: bool,
     /// Where screenshots and recorded paths go.
     pub output_dir: PathBuf,
+    /// Start here, looking there (world metres); default: south-west of the DEM, above it.
+    pub start: Option<(DVec3, DVec3)>,
+    /// Close after this many frames (scripted runs, smoke tests).
+    pub exit_after_frames: Option<u64>,
     pub progress: Progress,
 }
 
@@ -94,6 +98,16 @@ impl FlyCamera {
 
     fn camera(&self, fov_x_deg: f64, w: u32, h: u32) -> Result<Camera> {
         Camera::new(self.eye_in_world, self.eye_in_world + self.forward(), DVec3::Z, fov_x_deg, w.max(1), h.max(1))
+    }
+
+    /// At `eye` looking at `look`.
+    fn looking(eye: DVec3, look: DVec3, terrain: &TerrainFile) -> FlyCamera {
+        let d = look - eye;
+        let mut c = FlyCamera::start(terrain);
+        c.eye_in_world = eye;
+        c.yaw = d.y.atan2(d.x);
+        c.pitch = d.z.atan2(d.x.hypot(d.y)).clamp(-1.55, 1.55);
+        c
     }
 
     /// Starts south-west of the DEM, above its highest point, looking at its centre.
@@ -156,6 +170,7 @@ struct State {
     recording: Option<Vec<PathFrame>>,
     message: String,
     seq: u64,
+    frames: u64,
     stats: Stats,
 }
 
@@ -226,7 +241,11 @@ impl App {
             egui_ctx,
             egui_state,
             egui_renderer,
-            cam: FlyCamera::start(&self.terrain),
+            cam: match o.start {
+                Some((eye, look)) => FlyCamera::looking(eye, look, &self.terrain),
+                None => FlyCamera::start(&self.terrain),
+            },
+            frames: 0,
             keys: HashSet::new(),
             dragging: false,
             last_cursor: None,
@@ -316,6 +335,11 @@ impl ApplicationHandler for App {
             WindowEvent::RedrawRequested => {
                 if let Err(e) = s.frame(&self.terrain, &self.options) {
                     self.error = Some(e);
+                    event_loop.exit();
+                    return;
+                }
+                s.frames += 1;
+                if self.options.exit_after_frames.is_some_and(|n| s.frames >= n) {
                     event_loop.exit();
                     return;
                 }
@@ -461,14 +485,15 @@ impl State {
     fn draw_panel(&mut self, encoder: &mut wgpu::CommandEncoder, view: &wgpu::TextureView, o: &WindowOptions) {
         let input = self.egui_state.take_egui_input(&self.window);
         let ctx = self.egui_ctx.clone();
-        let output = ctx.run_ui(input, |ui| {
+        let mut output = ctx.run_ui(input, |ui| {
             egui::Window::new("relief").default_pos([12.0, 12.0]).resizable(false).show(ui.ctx(), |ui| self.panel(ui, o));
         });
         self.egui_state.handle_platform_output(&self.window, output.platform_output);
         let ppp = output.pixels_per_point;
         let jobs = ctx.tessellate(output.shapes, ppp);
         let screen = egui_wgpu::ScreenDescriptor { size_in_pixels: [self.config.width, self.config.height], pixels_per_point: ppp };
-        for (id, deltas) in &output.textures_delta.set {
+        let mut textures = std::mem::take(&mut output.textures_delta);
+        for (id, deltas) in &textures.set {
             for delta in deltas {
                 self.egui_renderer.update_texture(&self.gpu.device, &self.gpu.queue, *id, delta);
             }
@@ -493,9 +518,11 @@ impl State {
             });
             self.egui_renderer.render(&mut pass.forget_lifetime(), &jobs, &screen);
         }
-        for id in &output.textures_delta.free {
+        for id in &textures.free {
             self.egui_renderer.free_texture(id);
         }
+        // Applied above; egui checks (in debug builds) that no delta is dropped unapplied.
+        textures.clear();
     }
 
     fn panel(&mut self, ui: &mut egui::Ui, o: &WindowOptions) {

@@ -7,4 +7,20 @@ if [ ! -d ../shared/data/dem ]; then
   echo "tools/test.sh: ../shared/data/dem not found beside this checkout (the tests use its real DEMs)" >&2
   exit 1
 fi
+# Rendering tests need Vulkan: without a GPU, Mesa's software driver (lavapipe); the window test
+# needs Xvfb. Install them on Debian/Ubuntu when missing (as root, or with sudo).
+need=()
+{ ldconfig -p 2>/dev/null | grep -q 'libvulkan\.so\.1' && ls /usr/share/vulkan/icd.d/*.json >/dev/null 2>&1; } ||
+  need+=(mesa-vulkan-drivers libvulkan1)
+command -v xvfb-run >/dev/null || need+=(xvfb xauth)
+if [ ${#need[@]} -gt 0 ] && command -v apt-get >/dev/null; then
+  sudo=""; [ "$(id -u)" -eq 0 ] || sudo="sudo"
+  echo "tools/test.sh: installing ${need[*]}" >&2
+  $sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${need[@]}" >/dev/null
+fi
+# Mesa warns when the runtime directory is missing.
+if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "$XDG_RUNTIME_DIR" ]; then
+  export XDG_RUNTIME_DIR="$(mktemp -d)"
+  chmod 700 "$XDG_RUNTIME_DIR"
+fi
 cargo test --locked --all-targets
