@@ -137,7 +137,9 @@ impl FlyCamera {
 struct Stats {
     frame_ms_avg: f64,
     refine_ms: f64,
+    /// Bytes sent this frame (strip when new, plus the uniform) and by the last strip upload.
     upload_bytes: u64,
+    strip_upload_bytes: u64,
     lag: u64,
     faults_per_s: f64,
     major_faults_per_s: f64,
@@ -414,14 +416,15 @@ impl State {
             let job = RefineJob { camera: cam, options, seq: self.seq };
             let first = self.refined_camera.is_none();
             let u: Update = self.source.update(&self.gpu, &mut self.renderer, job, first);
+            self.stats.upload_bytes = u.upload_bytes + crate::render::terrain::FRAME_UNIFORM_BYTES;
             if u.uploaded {
                 self.stats.refine_ms = u.refine_ms.unwrap_or(0.0);
-                self.stats.upload_bytes = u.upload_bytes;
+                self.stats.strip_upload_bytes = u.upload_bytes;
                 self.stats.lag = u.lag;
                 self.refined_camera = Some(cam);
-            } else {
-                self.stats.upload_bytes = 0;
             }
+        } else {
+            self.stats.upload_bytes = crate::render::terrain::FRAME_UNIFORM_BYTES;
         }
         self.sample_faults(now);
 
@@ -538,7 +541,8 @@ impl State {
             row("refine", format!("{:.2} ms{}", st.refine_ms, if o.sync { " (sync)" } else { "" }));
             row("triangles", format!("{}", self.renderer.triangles()));
             row("strip length", format!("{}", self.renderer.strip_len()));
-            row("upload", format!("{} B/frame", st.upload_bytes));
+            row("upload", format!("{} B this frame", st.upload_bytes));
+            row("strip upload", format!("{:.1} KiB (last)", st.strip_upload_bytes as f64 / 1024.0));
             row("GPU heights", format!("{:.1} MiB", self.renderer.heights_bytes() as f64 / 1048576.0));
             row("resident", format!("{:.1} MiB", mem::rss_bytes().unwrap_or(0) as f64 / 1048576.0));
             row("page faults", format!("{:.0}/s ({:.0} major/s)", st.faults_per_s, st.major_faults_per_s));
