@@ -178,9 +178,10 @@ mod tests {
         // 16385 posts, 16384 texels: tiles of 2048 (9 × 9 = 81 layers) waste least.
         let t = HeightTiling::plan(16385, 16384, 256).unwrap();
         assert_eq!((t.tile_posts, t.tiles_per_row), (2048, 9));
-        // 1024-post tiles would need 17² = 289 layers, over the limit.
+        // 1024-post tiles need 17² = 289 layers, over a 256-layer limit; with 2048 layers allowed,
+        // 512-post tiles (33² layers, 285.5 M texels) beat 1024 (303 M) and 2048 (340 M).
         let t = HeightTiling::plan(16385, 8192, 2048).unwrap();
-        assert_eq!((t.tile_posts, t.tiles_per_row), (1024, 17));
+        assert_eq!((t.tile_posts, t.tiles_per_row), (512, 33));
         assert!(HeightTiling::plan(1 << 20 | 1, 2048, 16).is_err());
     }
 
