@@ -19,8 +19,7 @@ use crate::format::TerrainFile;
 use crate::mem;
 use crate::progress::Progress;
 use crate::refine::{RefineCounters, RefineOptions, Refiner, Strip};
-use crate::render::terrain::near_plane_m;
-use crate::render::{DrawStyle, Gpu, Offscreen, TerrainRenderer};
+use crate::render::{DrawStyle, FrameView, Gpu, Offscreen, TerrainRenderer};
 
 /// A one-slot mailbox: `put` replaces, `take` never blocks, `wait` blocks until a value arrives or
 /// the mailbox is closed.
@@ -319,13 +318,21 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
     v.sort_by(f64::total_cmp);
     let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
 }
 
 /// Writes `image` to `path` as PNG through a temporary file (never half-written).
 pub fn save_png(image: &image::RgbaImage, path: &Path) -> Result<()> {
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let tmp = tempfile::Builder::new().prefix(".relief-").suffix(".png.tmp").tempfile_in(dir).map_err(|e| Error::io(path, e))?;
+    let tmp = tempfile::Builder::new()
+        .prefix(".relief-")
+        .suffix(".png.tmp")
+        .tempfile_in(dir)
+        .map_err(|e| Error::io(path, e))?;
     image
         .write_to(&mut std::io::BufWriter::new(tmp.as_file()), image::ImageFormat::Png)
         .map_err(|e| Error::io(path, std::io::Error::other(e)))?;
@@ -368,15 +375,9 @@ pub fn fly_headless_on(
         let update = source.update(gpu, &mut renderer, job, k == 0);
         let t_render = Instant::now();
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        let uniform_bytes = renderer.encode(
-            gpu,
-            &mut encoder,
-            &target.colour_view,
-            &target.depth_view,
-            camera,
-            near_plane_m(&terrain, camera.eye_in_world),
-            options.style,
-        );
+        let view = FrameView::new(&terrain, *camera);
+        let uniform_bytes =
+            renderer.encode(gpu, &mut encoder, &target.colour_view, &target.depth_view, &view, options.style);
         gpu.queue.submit([encoder.finish()]);
         gpu.wait_idle()?;
         let render_ms = t_render.elapsed().as_secs_f64() * 1e3;
@@ -484,9 +485,8 @@ pub fn render_still(
     let t0 = Instant::now();
     let strip_bytes = renderer.upload_strip(gpu, &refined.strip);
     let mut encoder = gpu.device.create_command_encoder(&Default::default());
-    let near_m = near_plane_m(terrain, camera.eye_in_world);
-    let uniform_bytes =
-        renderer.encode(gpu, &mut encoder, &target.colour_view, &target.depth_view, camera, near_m, style);
+    let view = FrameView::new(terrain, *camera);
+    let uniform_bytes = renderer.encode(gpu, &mut encoder, &target.colour_view, &target.depth_view, &view, style);
     gpu.queue.submit([encoder.finish()]);
     gpu.wait_idle()?;
     let render_ms = t0.elapsed().as_secs_f64() * 1e3;

@@ -3,8 +3,8 @@
 
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::process::ExitCode;
+use std::sync::Arc;
 
 use anyhow::bail;
 use clap::builder::{PossibleValuesParser, TypedValueParser};
@@ -14,18 +14,18 @@ use glam::DVec3;
 use relief::camera::Camera;
 use relief::convert::{convert, ConvertOptions};
 use relief::dem::DemFormat;
+use relief::flight::FlightPath;
 use relief::flight::{flyover, orbit, FlyoverOptions, OrbitOptions};
+use relief::fly::{bundled_terrain, fly_headless, render_still, save_png, HeadlessOptions};
 use relief::format::TerrainFile;
 use relief::inspect;
 use relief::layout::LayoutKind;
 use relief::metric::MetricKind;
 use relief::progress::Progress;
 use relief::refine::RefineOptions;
-use relief::flight::FlightPath;
-use relief::fly::{bundled_terrain, fly_headless, render_still, save_png, HeadlessOptions};
-use relief::window::{fly_window, WindowOptions};
 use relief::refine_report::{refine_report, ReportOptions};
 use relief::render::{DrawStyle, Gpu};
+use relief::window::{fly_window, WindowOptions};
 
 #[derive(Parser)]
 #[command(name = "relief", version, about = "Terrain files for out-of-core, view-dependent rendering of height fields")]

@@ -27,8 +27,7 @@ use crate::mem;
 use crate::progress::Progress;
 use crate::refine::RefineOptions;
 use crate::render::offscreen::Offscreen;
-use crate::render::terrain::near_plane_m;
-use crate::render::{DrawStyle, Gpu, RendererOptions, TerrainRenderer};
+use crate::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
 
 /// Settings of an interactive flight.
 #[derive(Clone, Debug)]
@@ -123,12 +122,7 @@ impl FlyCamera {
         let eye = centre + DVec3::new(-0.45 * size_m, -0.45 * size_m, 0.0);
         let eye = DVec3::new(eye.x, eye.y, h.z_max + 0.15 * size_m);
         let d = centre - eye;
-        FlyCamera {
-            eye_in_world: eye,
-            yaw: d.y.atan2(d.x),
-            pitch: d.z.atan2(d.x.hypot(d.y)),
-            speed_mps: size_m / 30.0,
-        }
+        FlyCamera { eye_in_world: eye, yaw: d.y.atan2(d.x), pitch: d.z.atan2(d.x.hypot(d.y)), speed_mps: size_m / 30.0 }
     }
 }
 
@@ -214,8 +208,8 @@ impl App {
             color_space: wgpu::SurfaceColorSpace::Auto,
         };
         surface.configure(&gpu.device, &config);
-        let depth_view = crate::render::offscreen::depth_target(&gpu, config.width, config.height)
-            .create_view(&Default::default());
+        let depth_view =
+            crate::render::offscreen::depth_target(&gpu, config.width, config.height).create_view(&Default::default());
         let renderer = TerrainRenderer::new(&gpu, &self.terrain, format, RendererOptions::default(), o.progress)?;
         let source = StripSource::new(self.terrain.clone(), o.threads, !o.sync)?;
         let egui_ctx = egui::Context::default();
@@ -363,9 +357,9 @@ impl State {
             let cam = self.camera(o)?;
             let target = Offscreen::with_format(&self.gpu, cam.width_px, cam.height_px, self.config.format)?;
             let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-            let near_m = near_plane_m(terrain, cam.eye_in_world);
+            let view = FrameView::new(terrain, cam);
             let style = DrawStyle { wireframe: self.wireframe };
-            self.renderer.encode(&self.gpu, &mut enc, &target.colour_view, &target.depth_view, &cam, near_m, style);
+            self.renderer.encode(&self.gpu, &mut enc, &target.colour_view, &target.depth_view, &view, style);
             self.gpu.queue.submit([enc.finish()]);
             let image = target.read_rgba(&self.gpu)?;
             let path = o.output_dir.join(format!("relief-{}.png", timestamp()));
@@ -400,11 +394,8 @@ impl State {
         let now = Instant::now();
         let dt = (now - self.last_frame).as_secs_f64().min(0.25);
         self.last_frame = now;
-        self.stats.frame_ms_avg = if self.stats.frame_ms_avg == 0.0 {
-            dt * 1e3
-        } else {
-            0.9 * self.stats.frame_ms_avg + 0.1 * dt * 1e3
-        };
+        self.stats.frame_ms_avg =
+            if self.stats.frame_ms_avg == 0.0 { dt * 1e3 } else { 0.9 * self.stats.frame_ms_avg + 0.1 * dt * 1e3 };
         self.fly(dt);
         let cam = self.camera(o)?;
         if let Some(rec) = &mut self.recording {
@@ -439,15 +430,8 @@ impl State {
         let view = frame.texture.create_view(&Default::default());
         let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
         let style = DrawStyle { wireframe: self.wireframe };
-        self.renderer.encode(
-            &self.gpu,
-            &mut encoder,
-            &view,
-            &self.depth_view,
-            &cam,
-            near_plane_m(terrain, cam.eye_in_world),
-            style,
-        );
+        let frame_view = FrameView::new(terrain, cam);
+        self.renderer.encode(&self.gpu, &mut encoder, &view, &self.depth_view, &frame_view, style);
         self.draw_panel(&mut encoder, &view, o);
         self.gpu.queue.submit([encoder.finish()]);
         self.window.pre_present_notify();
@@ -463,7 +447,8 @@ impl State {
         v += f * (k(KeyCode::KeyW) - k(KeyCode::KeyS));
         v += right * (k(KeyCode::KeyD) - k(KeyCode::KeyA));
         v += DVec3::Z * (k(KeyCode::KeyE) - k(KeyCode::KeyQ));
-        let boost = if self.keys.contains(&KeyCode::ShiftLeft) || self.keys.contains(&KeyCode::ShiftRight) { 4.0 } else { 1.0 };
+        let boost =
+            if self.keys.contains(&KeyCode::ShiftLeft) || self.keys.contains(&KeyCode::ShiftRight) { 4.0 } else { 1.0 };
         self.cam.eye_in_world += v * self.cam.speed_mps * boost * dt;
     }
 
@@ -489,12 +474,18 @@ impl State {
         let input = self.egui_state.take_egui_input(&self.window);
         let ctx = self.egui_ctx.clone();
         let mut output = ctx.run_ui(input, |ui| {
-            egui::Window::new("relief").default_pos([12.0, 12.0]).resizable(false).show(ui.ctx(), |ui| self.panel(ui, o));
+            egui::Window::new("relief")
+                .default_pos([12.0, 12.0])
+                .resizable(false)
+                .show(ui.ctx(), |ui| self.panel(ui, o));
         });
         self.egui_state.handle_platform_output(&self.window, output.platform_output);
         let ppp = output.pixels_per_point;
         let jobs = ctx.tessellate(output.shapes, ppp);
-        let screen = egui_wgpu::ScreenDescriptor { size_in_pixels: [self.config.width, self.config.height], pixels_per_point: ppp };
+        let screen = egui_wgpu::ScreenDescriptor {
+            size_in_pixels: [self.config.width, self.config.height],
+            pixels_per_point: ppp,
+        };
         let mut textures = std::mem::take(&mut output.textures_delta);
         for (id, deltas) in &textures.set {
             for delta in deltas {

@@ -18,8 +18,8 @@ use relief::progress::Progress;
 use relief::refine::{RefineOptions, Refiner, Strip};
 use relief::render::offscreen::ProbeTargets;
 use relief::render::shade::{self, ShadeParams};
-use relief::render::terrain::{near_plane_m, Probe, FRAME_UNIFORM_BYTES, MORPH_BYTES, VERTEX_BYTES};
-use relief::render::{DrawStyle, Gpu, RendererOptions, TerrainRenderer};
+use relief::render::terrain::{Probe, FRAME_UNIFORM_BYTES, MORPH_BYTES, VERTEX_BYTES};
+use relief::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
 
 /// One device for the whole test binary (software Vulkan starts slowly), used by one test at a
 /// time.
@@ -34,10 +34,13 @@ fn gpu() -> std::sync::MutexGuard<'static, Gpu> {
     .unwrap_or_else(|p| p.into_inner())
 }
 
-/// Real DEMs converted once per test binary: (file stem, spacing override).
+/// Converted terrains by DEM name.
+type Converted = Vec<(String, Arc<TerrainFile>)>;
+
+/// Real DEMs converted once per test binary.
 fn terrain(name: &str) -> Arc<TerrainFile> {
     static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
-    static CACHE: OnceLock<Mutex<Vec<(String, Arc<TerrainFile>)>>> = OnceLock::new();
+    static CACHE: OnceLock<Mutex<Converted>> = OnceLock::new();
     let dir = DIR.get_or_init(|| tempfile::tempdir().unwrap());
     let cache = CACHE.get_or_init(|| Mutex::new(Vec::new()));
     let mut cache = cache.lock().unwrap_or_else(|p| p.into_inner());
@@ -86,7 +89,9 @@ fn every_wgsl_file_validates_with_naga() {
     }
     // The check itself catches errors: a type error and an undeclared binding.
     assert!(validate("fn f() -> f32 { return 1u; }").is_err());
-    assert!(validate("@fragment fn f() -> @location(0) vec4<f32> { return textureLoad(t, vec2<u32>(0u), 0); }").is_err());
+    assert!(
+        validate("@fragment fn f() -> @location(0) vec4<f32> { return textureLoad(t, vec2<u32>(0u), 0); }").is_err()
+    );
 }
 
 /// The probe pass writes what `fs_terrain` computes; the CPU reference (`render::shade`) must
@@ -98,7 +103,12 @@ fn gpu_shading_matches_the_cpu_reference_across_tiles() {
     let t = terrain("zurich_25m_i16.tif");
     let cam = camera([2000.0, -1500.0, 1500.0], [5000.0, 4500.0, 500.0], 256, 160);
     let mut strip = Strip::new();
-    Refiner::new(1).unwrap().refine_file(&t, &cam, &RefineOptions { tolerance_px: 2.0, ..Default::default() }, &mut strip);
+    Refiner::new(1).unwrap().refine_file(
+        &t,
+        &cam,
+        &RefineOptions { tolerance_px: 2.0, ..Default::default() },
+        &mut strip,
+    );
     let probe = |tile_posts: Option<u32>, what: Probe| {
         let mut r = TerrainRenderer::new(
             &gpu,
@@ -116,8 +126,7 @@ fn gpu_shading_matches_the_cpu_reference_across_tiles() {
             &mut enc,
             [&targets.views[0], &targets.views[1]],
             &targets.depth_view,
-            &cam,
-            near_plane_m(&t, cam.eye_in_world),
+            &FrameView::new(&t, cam),
             what,
         );
         gpu.queue.submit([enc.finish()]);

@@ -9,4 +9,4 @@ pub mod terrain;
 
 pub use gpu::Gpu;
 pub use offscreen::Offscreen;
-pub use terrain::{DrawStyle, RendererOptions, TerrainRenderer};
+pub use terrain::{DrawStyle, FrameView, RendererOptions, TerrainRenderer};

@@ -130,7 +130,8 @@ pub struct ProbeTargets {
 
 impl ProbeTargets {
     pub fn new(gpu: &Gpu, width_px: u32, height_px: u32) -> ProbeTargets {
-        let targets = ["probe position", "probe value"].map(|label| target(gpu, label, width_px, height_px, PROBE_FORMAT));
+        let targets =
+            ["probe position", "probe value"].map(|label| target(gpu, label, width_px, height_px, PROBE_FORMAT));
         let views = [0, 1].map(|k| targets[k].create_view(&Default::default()));
         let depth_view = depth_target(gpu, width_px, height_px).create_view(&Default::default());
         ProbeTargets { targets, views, depth_view }

@@ -74,11 +74,7 @@ pub fn surface_at(p: &ShadeParams, height: &impl Fn(i32, i32) -> f64, grid: [f64
     let base = [g[0].floor().min(last - 1.0), g[1].floor().min(last - 1.0)];
     let f = [g[0] - base[0], g[1] - base[1]];
     let (x, y) = (base[0] as i32, base[1] as i32);
-    let h = mix(
-        mix(height(x, y), height(x + 1, y), f[0]),
-        mix(height(x, y + 1), height(x + 1, y + 1), f[0]),
-        f[1],
-    );
+    let h = mix(mix(height(x, y), height(x + 1, y), f[0]), mix(height(x, y + 1), height(x + 1, y + 1), f[0]), f[1]);
     let n = mix3(
         mix3(post_normal(p, height, x, y), post_normal(p, height, x + 1, y), f[0]),
         mix3(post_normal(p, height, x, y + 1), post_normal(p, height, x + 1, y + 1), f[0]),

@@ -66,15 +66,23 @@ pub enum Probe {
 pub const FRAME_UNIFORM_BYTES: u64 = std::mem::size_of::<FrameUniform>() as u64;
 
 /// How to draw a frame.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct DrawStyle {
     /// Overlay the strip's edges (shows the level of detail).
     pub wireframe: bool,
 }
 
-impl Default for DrawStyle {
-    fn default() -> Self {
-        DrawStyle { wireframe: false }
+/// A camera and the near plane to draw it with.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameView {
+    pub camera: Camera,
+    pub near_m: f64,
+}
+
+impl FrameView {
+    /// `camera` with the near plane [`near_plane_m`] picks for it over `terrain`.
+    pub fn new(terrain: &TerrainFile, camera: Camera) -> FrameView {
+        FrameView { camera, near_m: near_plane_m(terrain, camera.eye_in_world) }
     }
 }
 
@@ -257,11 +265,8 @@ impl TerrainRenderer {
                 },
             })
         };
-        let colour_target = [Some(wgpu::ColorTargetState {
-            format: colour_format,
-            blend: None,
-            write_mask: wgpu::ColorWrites::ALL,
-        })];
+        let colour_target =
+            [Some(wgpu::ColorTargetState { format: colour_format, blend: None, write_mask: wgpu::ColorWrites::ALL })];
         let probe_targets = [0; 2].map(|_| {
             Some(wgpu::ColorTargetState { format: PROBE_FORMAT, blend: None, write_mask: wgpu::ColorWrites::ALL })
         });
@@ -459,19 +464,19 @@ impl TerrainRenderer {
         }
     }
 
-    /// Records a frame: terrain, optional wireframe, then sky, into `colour` and `depth` (both
-    /// cleared). Returns the uniform bytes written.
+    /// Records a frame of `view`: terrain, optional wireframe, then sky, into `colour` and
+    /// `depth` (both cleared). Returns the uniform bytes written.
     pub fn encode(
         &self,
         gpu: &Gpu,
         encoder: &mut wgpu::CommandEncoder,
         colour: &wgpu::TextureView,
         depth: &wgpu::TextureView,
-        camera: &Camera,
-        near_m: f64,
+        view: &FrameView,
         style: DrawStyle,
     ) -> u64 {
-        gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.frame_uniform(camera, near_m, 0)));
+        let uniform = self.frame_uniform(&view.camera, view.near_m, 0);
+        gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&uniform));
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("relief frame"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
@@ -507,7 +512,10 @@ impl TerrainRenderer {
                 pass.set_pipeline(&pipes[1]);
                 for start in 0..2u64 {
                     let count = ((n as u64 - start).div_ceil(2)) as u32;
-                    pass.set_vertex_buffer(0, self.vertices.buffer.slice(start * VERTEX_BYTES..n as u64 * VERTEX_BYTES));
+                    pass.set_vertex_buffer(
+                        0,
+                        self.vertices.buffer.slice(start * VERTEX_BYTES..n as u64 * VERTEX_BYTES),
+                    );
                     if self.strip_morph {
                         pass.set_vertex_buffer(1, self.morph.buffer.slice(start * MORPH_BYTES..n as u64 * MORPH_BYTES));
                     }
@@ -530,11 +538,10 @@ impl TerrainRenderer {
         encoder: &mut wgpu::CommandEncoder,
         targets: [&wgpu::TextureView; 2],
         depth: &wgpu::TextureView,
-        camera: &Camera,
-        near_m: f64,
+        view: &FrameView,
         probe: Probe,
     ) {
-        let uniform = self.frame_uniform(camera, near_m, probe as u32);
+        let uniform = self.frame_uniform(&view.camera, view.near_m, probe as u32);
         gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&uniform));
         let attachments = targets.map(|view| {
             Some(wgpu::RenderPassColorAttachment {
