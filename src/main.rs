@@ -25,7 +25,7 @@ use relief::progress::Progress;
 use relief::refine::RefineOptions;
 use relief::refine_report::{refine_report, ReportOptions};
 use relief::render::{DrawStyle, Gpu};
-use relief::window::{fly_window, WindowOptions};
+use relief::window::{check_display, fly_window, WindowOptions};
 
 #[derive(Parser)]
 #[command(name = "relief", version, about = "Terrain files for out-of-core, view-dependent rendering of height fields")]
@@ -58,9 +58,6 @@ struct ViewArgs {
     /// Up direction "X,Y,Z".
     #[arg(long, value_name = "X,Y,Z", default_value = "0,0,1", allow_hyphen_values = true)]
     up: String,
-    /// Screen-space error tolerance τ, pixels.
-    #[arg(long, value_name = "PX", default_value_t = 1.0)]
-    tolerance: f64,
     /// Image width, pixels.
     #[arg(long, value_name = "W", default_value_t = 1920)]
     width: u32,
@@ -70,6 +67,16 @@ struct ViewArgs {
     /// Horizontal field of view, degrees.
     #[arg(long, value_name = "DEG", default_value_t = 60.0)]
     fov: f64,
+    #[command(flatten)]
+    refine: RefineArgs,
+}
+
+/// How to refine (shared by `refine`, `render` and `fly`).
+#[derive(Args)]
+struct RefineArgs {
+    /// Screen-space error tolerance τ, pixels.
+    #[arg(long, value_name = "PX", default_value_t = 1.0)]
+    tolerance: f64,
     /// Screen-space error metric.
     #[arg(long, value_parser = metric_parser(), default_value = "isotropic")]
     metric: MetricKind,
@@ -85,13 +92,33 @@ struct ViewArgs {
     threads: usize,
 }
 
-impl ViewArgs {
-    /// The validated camera and refinement options.
-    fn resolve(&self) -> anyhow::Result<(Camera, RefineOptions)> {
-        let options = refine_options(self.tolerance, self.metric, self.no_cull, self.geomorph)?;
+impl RefineArgs {
+    /// The validated refinement options.
+    fn options(&self) -> anyhow::Result<RefineOptions> {
+        if !(self.tolerance > 0.0 && self.tolerance.is_finite()) {
+            bail!("--tolerance: expected a positive number of pixels, got {}", self.tolerance);
+        }
+        if let Some(r) = self.geomorph {
+            if !(r > 1.0 && r.is_finite()) {
+                bail!("--geomorph: expected a ratio greater than 1, got {r}");
+            }
+        }
         if self.threads == 0 {
             bail!("--threads must be at least 1");
         }
+        Ok(RefineOptions {
+            tolerance_px: self.tolerance,
+            metric: self.metric,
+            cull: !self.no_cull,
+            morph_ratio: self.geomorph,
+        })
+    }
+}
+
+impl ViewArgs {
+    /// The validated camera and refinement options.
+    fn resolve(&self) -> anyhow::Result<(Camera, RefineOptions)> {
+        let options = self.refine.options()?;
         let camera = Camera::new(
             parse_vec3("--eye", &self.eye)?,
             parse_vec3("--look", &self.look)?,
@@ -102,24 +129,6 @@ impl ViewArgs {
         )?;
         Ok((camera, options))
     }
-}
-
-/// Validated refinement options from the command line.
-fn refine_options(
-    tolerance: f64,
-    metric: MetricKind,
-    no_cull: bool,
-    geomorph: Option<f64>,
-) -> anyhow::Result<RefineOptions> {
-    if !(tolerance > 0.0 && tolerance.is_finite()) {
-        bail!("--tolerance: expected a positive number of pixels, got {tolerance}");
-    }
-    if let Some(r) = geomorph {
-        if !(r > 1.0 && r.is_finite()) {
-            bail!("--geomorph: expected a ratio greater than 1, got {r}");
-        }
-    }
-    Ok(RefineOptions { tolerance_px: tolerance, metric, cull: !no_cull, morph_ratio: geomorph })
 }
 
 #[derive(Subcommand)]
@@ -233,9 +242,6 @@ enum Command {
         /// window, sync headless (each frame drawn with its own view's strip).
         #[arg(long, value_parser = ["thread", "sync"])]
         refinement: Option<String>,
-        /// Screen-space error tolerance τ, pixels.
-        #[arg(long, value_name = "PX", default_value_t = 1.0)]
-        tolerance: f64,
         /// Image or window width, pixels.
         #[arg(long, value_name = "W", default_value_t = 1280)]
         width: u32,
@@ -245,18 +251,8 @@ enum Command {
         /// Horizontal field of view, degrees.
         #[arg(long, value_name = "DEG", default_value_t = 60.0)]
         fov: f64,
-        /// Screen-space error metric.
-        #[arg(long, value_parser = metric_parser(), default_value = "isotropic")]
-        metric: MetricKind,
-        /// Do not cull to the view frustum.
-        #[arg(long)]
-        no_cull: bool,
-        /// Geomorphing ratio (> 1), as for `refine`.
-        #[arg(long, value_name = "RATIO")]
-        geomorph: Option<f64>,
-        /// Refinement threads.
-        #[arg(long, value_name = "N", default_value_t = 1)]
-        threads: usize,
+        #[command(flatten)]
+        refine: RefineArgs,
         /// Start with the wireframe overlay on.
         #[arg(long)]
         wireframe: bool,
@@ -507,7 +503,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             if repeat == 0 {
                 bail!("--repeat must be at least 1");
             }
-            let threads = view.threads;
+            let threads = view.refine.threads;
             let f = TerrainFile::open(&file)?;
             let report = ReportOptions { threads, repeat, check, compare_minimal };
             let (r, _) = refine_report(&f, &camera, &options, &report)?;
@@ -546,14 +542,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             stats,
             json,
             refinement,
-            tolerance,
             width,
             height,
             fov,
-            metric,
-            no_cull,
-            geomorph,
-            threads,
+            refine,
             wireframe,
             output_dir,
             eye,
@@ -561,12 +553,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             exit_after_frames,
             quiet,
         } => {
-            let refine = refine_options(tolerance, metric, no_cull, geomorph)?;
-            if threads == 0 {
-                bail!("--threads must be at least 1");
-            }
+            let threads = refine.threads;
+            let refine = refine.options()?;
             if width == 0 || height == 0 {
                 bail!("--width and --height must be at least 1 pixel");
+            }
+            if path.is_none() {
+                check_display()?;
             }
             let file = match file {
                 Some(f) => f,
@@ -647,7 +640,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let f = TerrainFile::open(&file)?;
             let gpu = Gpu::headless()?;
             let style = DrawStyle { wireframe };
-            let (image, r) = render_still(&gpu, &f, &camera, &options, style, view.threads, progress(quiet))?;
+            let (image, r) = render_still(&gpu, &f, &camera, &options, style, view.refine.threads, progress(quiet))?;
             save_png(&image, &out)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&r)?);

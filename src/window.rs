@@ -57,12 +57,18 @@ pub fn no_display(reason: &str) -> Error {
     ))
 }
 
-/// Opens a window and flies over `terrain` until it is closed.
-pub fn fly_window(terrain: Arc<TerrainFile>, options: WindowOptions) -> Result<()> {
+/// Fails early, with the headless alternative, where no X display is set (Linux, BSD).
+pub fn check_display() -> Result<()> {
     #[cfg(all(unix, not(target_os = "macos")))]
     if std::env::var_os("DISPLAY").is_none() {
         return Err(no_display("DISPLAY is not set"));
     }
+    Ok(())
+}
+
+/// Opens a window and flies over `terrain` until it is closed.
+pub fn fly_window(terrain: Arc<TerrainFile>, options: WindowOptions) -> Result<()> {
+    check_display()?;
     let event_loop = EventLoop::new().map_err(|e| no_display(&e.to_string()))?;
     let mut app = App { terrain, options, state: None, error: None };
     event_loop.run_app(&mut app).map_err(|e| Error::Gpu(format!("window event loop: {e}")))?;
