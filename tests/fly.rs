@@ -203,25 +203,61 @@ fn fly_without_a_display_explains_how_to_fly_headless() {
     assert!(!e.contains("panicked"), "{e}");
 }
 
-/// The window opens, draws frames with the panel and closes cleanly under Xvfb (skipped, with a
-/// note, where xvfb-run is not installed; tools/test.sh installs it).
+/// The window opens, draws frames with the panel and closes cleanly under Xvfb; keys work: R
+/// starts and stops recording a path that loads back, P saves a screenshot, Escape quits. Skipped, with a note,
+/// where xvfb-run or xdotool is not installed (tools/test.sh installs both).
 #[test]
-fn fly_window_runs_under_xvfb() {
-    if Command::new("xvfb-run").arg("--help").output().is_err() {
-        eprintln!("note: xvfb-run not installed; window test skipped");
+fn fly_window_runs_under_xvfb_and_keys_record_and_screenshot() {
+    let have = |tool: &str| Command::new(tool).arg("--help").output().is_ok();
+    if !have("xvfb-run") || !have("xdotool") {
+        eprintln!("note: xvfb-run or xdotool not installed; window test skipped");
         return;
     }
     let dir = tempfile::tempdir().unwrap();
     let file = zurich(dir.path());
-    let mut c = Command::new("xvfb-run");
-    c.args(["-a", "-s", "-screen 0 800x600x24"])
-        .arg(env!("CARGO_BIN_EXE_relief"))
-        .arg("fly")
-        .arg(&file)
-        .args(["--width", "640", "--height", "400", "--exit-after-frames", "20", "--quiet"])
-        .env("XDG_RUNTIME_DIR", dir.path());
-    std::fs::set_permissions(dir.path(), std::os::unix::fs::PermissionsExt::from_mode(0o700)).unwrap();
-    let o = c.output().unwrap();
-    assert!(o.status.success(), "window flight failed: {}", stderr_of(&o));
-    assert!(!stderr_of(&o).contains("panicked"));
+    let rt = dir.path().join("rt");
+    std::fs::create_dir(&rt).unwrap();
+    std::fs::set_permissions(&rt, std::os::unix::fs::PermissionsExt::from_mode(0o700)).unwrap();
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    // One shell under xvfb-run: start the window, press keys once it is mapped, wait for it.
+    let script = r#"
+        "$RELIEF" fly "$TERRAIN" --width 480 --height 300 --exit-after-frames 100000 --output-dir "$OUT" --quiet &
+        pid=$!
+        for _ in $(seq 100); do w=$(xdotool search --name '^relief' 2>/dev/null | head -1); [ -n "$w" ] && break; sleep 0.1; done
+        [ -n "$w" ] || { echo "no window"; kill $pid; exit 3; }
+        sleep 1
+        # XTEST key events to the focused window (winit ignores synthetic sent events).
+        xdotool windowfocus --sync "$w"; sleep 0.5
+        # Xvfb without a window manager now and then drops a key event: retry until a path exists.
+        for _ in 1 2 3; do
+          xdotool key r; sleep 1.5; xdotool key r; sleep 0.5
+          ls "$OUT"/*.json >/dev/null 2>&1 && break
+        done
+        for _ in 1 2 3; do xdotool key p; sleep 1; ls "$OUT"/*.png >/dev/null 2>&1 && break; done
+        for _ in 1 2 3; do
+          xdotool key Escape
+          for _ in $(seq 30); do kill -0 $pid 2>/dev/null || break; sleep 0.1; done
+          kill -0 $pid 2>/dev/null || break
+        done
+        kill -0 $pid 2>/dev/null && { echo "Escape did not close the window"; kill $pid; exit 4; }
+        wait $pid
+    "#;
+    let o = Command::new("xvfb-run")
+        .args(["-a", "-s", "-screen 0 800x600x24", "sh", "-c", script])
+        .env("RELIEF", env!("CARGO_BIN_EXE_relief"))
+        .env("TERRAIN", &file)
+        .env("OUT", &out)
+        .env("XDG_RUNTIME_DIR", &rt)
+        .output()
+        .unwrap();
+    let e = stderr_of(&o);
+    assert!(o.status.success(), "window flight failed ({:?}): {e}{}", o.status, String::from_utf8_lossy(&o.stdout));
+    assert!(!e.contains("panicked"), "{e}");
+    let files: Vec<PathBuf> = std::fs::read_dir(&out).unwrap().map(|d| d.unwrap().path()).collect();
+    let path = files.iter().find(|p| p.extension().is_some_and(|x| x == "json")).expect("a recorded path");
+    let recorded = relief::flight::FlightPath::load(path).unwrap();
+    assert!(recorded.frames.len() >= 2, "{} frames recorded", recorded.frames.len());
+    let shot = files.iter().find(|p| p.extension().is_some_and(|x| x == "png")).expect("a screenshot");
+    assert_eq!(image::open(shot).unwrap().to_rgba8().dimensions(), (480, 300));
 }

@@ -8,11 +8,12 @@ if [ ! -d ../shared/data/dem ]; then
   exit 1
 fi
 # Rendering tests need Vulkan: without a GPU, Mesa's software driver (lavapipe); the window test
-# needs Xvfb. Install them on Debian/Ubuntu when missing (as root, or with sudo).
+# needs Xvfb and xdotool. Install them on Debian/Ubuntu when missing (as root, or with sudo).
 need=()
 { ldconfig -p 2>/dev/null | grep -q 'libvulkan\.so\.1' && ls /usr/share/vulkan/icd.d/*.json >/dev/null 2>&1; } ||
   need+=(mesa-vulkan-drivers libvulkan1)
 command -v xvfb-run >/dev/null || need+=(xvfb xauth)
+command -v xdotool >/dev/null || need+=(xdotool)
 if [ ${#need[@]} -gt 0 ] && command -v apt-get >/dev/null; then
   sudo=""; [ "$(id -u)" -eq 0 ] || sudo="sudo"
   echo "tools/test.sh: installing ${need[*]}" >&2
