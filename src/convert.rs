@@ -22,7 +22,9 @@ use crate::cancel;
 use crate::dem::{self, DemFormat, Run, SourceSpacing};
 use crate::error::{Error, IoContext, Result};
 use crate::fill;
-use crate::format::{self, Header, Record, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED, PAYLOAD_OFFSET, RECORD_BYTES};
+use crate::format::{
+    self, Header, Record, TerrainFile, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED, PAYLOAD_OFFSET, RECORD_BYTES,
+};
 use crate::hierarchy::{Grid, MAX_N};
 use crate::layout::{AnyLayout, Layout, LayoutKind};
 use crate::mem::AnonSampler;
@@ -208,6 +210,68 @@ fn temp_in(dir: &Path, output: &Path) -> Result<tempfile::NamedTempFile> {
 
 /// Converts the DEM at `input` into a terrain file at `output`.
 pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<ConvertReport> {
+    convert_source(input, None, output, opts)
+}
+
+/// Writes `terrain` again in another layout (`opts.layout`): the DEM's own posts (its valid
+/// window) are read back from the file and converted as if they came from the DEM, so the result
+/// equals converting the original DEM (heights are taken as metres: `z_scale` 1, offset 0).
+pub fn relayout(terrain: &TerrainFile, output: &Path, opts: &ConvertOptions) -> Result<ConvertReport> {
+    if output == terrain.path() {
+        return Err(Error::InvalidArgument(format!("{}: re-layout output must be another file", output.display())));
+    }
+    let opts = ConvertOptions { z_scale: 1.0, z_offset: 0.0, format: None, ..opts.clone() };
+    convert_source(terrain.path(), Some(Box::new(TerrainSource::new(terrain))), output, &opts)
+}
+
+/// A terrain file's valid window streamed as a DEM (row 0 north), for [`relayout`].
+struct TerrainSource<'a> {
+    terrain: &'a TerrainFile,
+    info: dem::DemInfo,
+}
+
+impl<'a> TerrainSource<'a> {
+    fn new(terrain: &'a TerrainFile) -> Self {
+        let h = terrain.header();
+        let [x0, y0, x1, y1] = h.valid_window;
+        let info = dem::DemInfo {
+            format: DemFormat::ALL.get(h.source_format as usize).copied().unwrap_or(DemFormat::GeoTiff),
+            width: x1 - x0,
+            height: y1 - y0,
+            spacing: Some(dem::SourceSpacing::Metres { x: h.spacing_m[0], y: h.spacing_m[1] }),
+            nodata: None,
+            sample_type: "float32 (relief terrain file)".into(),
+        };
+        TerrainSource { terrain, info }
+    }
+}
+
+impl dem::DemSource for TerrainSource<'_> {
+    fn info(&self) -> &dem::DemInfo {
+        &self.info
+    }
+
+    fn read(&mut self, sink: &mut dyn FnMut(dem::Run<'_>) -> Result<()>) -> Result<()> {
+        let [x0, y0, x1, y1] = self.terrain.header().valid_window;
+        let mut row = vec![0f64; (x1 - x0) as usize];
+        for r in 0..(y1 - y0) {
+            // Grid row y counts from the south; DEM row 0 is the northernmost.
+            let y = y1 - 1 - r;
+            for (k, v) in row.iter_mut().enumerate() {
+                *v = self.terrain.record_at(x0 + k as u32, y).z as f64;
+            }
+            sink(dem::Run { row: r, x0: 0, values: &row })?;
+        }
+        Ok(())
+    }
+}
+
+fn convert_source(
+    input: &Path,
+    source: Option<Box<dyn dem::DemSource + '_>>,
+    output: &Path,
+    opts: &ConvertOptions,
+) -> Result<ConvertReport> {
     let started = Instant::now();
     let sampler = AnonSampler::start();
     let mut steps = StepSeconds::default();
@@ -224,7 +288,10 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
         }
     }
 
-    let mut source = dem::open(input, opts.format)?;
+    let mut source = match source {
+        Some(s) => s,
+        None => dem::open(input, opts.format)?,
+    };
     let info = source.info().clone();
     let (width, height) = (info.width, info.height);
     let grid = Grid::covering(width as u64, height as u64).ok_or(Error::GridTooLarge {

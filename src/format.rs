@@ -334,6 +334,12 @@ impl TerrainFile {
         bytemuck::cast_slice(self.payload())
     }
 
+    /// Asks the kernel not to read ahead around faults in the mapping (`madvise(MADV_RANDOM)`),
+    /// so fault counts reflect the pages actually touched.
+    pub fn advise_random(&self) -> Result<()> {
+        self.map.advise(memmap2::Advice::Random).at(&self.path)
+    }
+
     /// The record of grid position `(x, y)`.
     pub fn record_at(&self, x: u32, y: u32) -> Record {
         self.records()[self.layout.index(x, y) as usize]

@@ -11,6 +11,7 @@ pub mod dem;
 pub mod error;
 pub mod hierarchy;
 pub mod layout;
+pub mod layout_faults;
 
 pub use error::{Error, Result};
 pub mod camera;
@@ -25,6 +26,7 @@ pub mod mem;
 pub mod mesh_check;
 pub mod metric;
 pub mod minimal;
+pub mod pager;
 pub mod preprocess;
 pub mod progress;
 pub mod refine;

@@ -20,6 +20,7 @@ use relief::fly::{bundled_terrain, fly_headless, render_still, save_png, Headles
 use relief::format::TerrainFile;
 use relief::inspect;
 use relief::layout::LayoutKind;
+use relief::layout_faults::{run_layouts, terrain_in_layout, LayoutsOptions};
 use relief::metric::MetricKind;
 use relief::progress::Progress;
 use relief::refine::RefineOptions;
@@ -294,6 +295,56 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// Compare index layouts by page faults along a flight (the terrain paper's experiment).
+    ///
+    /// INPUT is a DEM (converted once per layout into --cache-dir) or a terrain file (re-laid out
+    /// once per layout). For each layout and tolerance the flight in --path is refined frame by
+    /// frame and every record read is charged to its page in an LRU model of a page cache of
+    /// --memory bytes: faults are that model's misses, identical on every machine. --os also counts
+    /// the process's real major faults on a cold, readahead-free mapping.
+    Layouts {
+        input: PathBuf,
+        /// Flight path JSON (see `relief path`).
+        #[arg(long, value_name = "PATH.json")]
+        path: PathBuf,
+        /// Page cache size: bytes with an optional K/M/G suffix (binary), or a fraction such as
+        /// 1/16 of the terrain's data (posts × 12 bytes, no index-space waste).
+        #[arg(long, value_name = "BYTES|1/N")]
+        memory: String,
+        /// Page size in bytes (a power of two; K/M suffixes allowed).
+        #[arg(long, value_name = "BYTES", default_value = "4096")]
+        page_size: String,
+        /// Screen-space tolerances τ in pixels, comma-separated.
+        #[arg(long, value_name = "PX[,PX…]", default_value = "1")]
+        tolerance: String,
+        /// Layouts to compare, comma-separated.
+        #[arg(long, value_name = "a,b,…", default_value = "row-major,tiled,interleaved,embedded,hz")]
+        layouts: String,
+        /// Image width, pixels.
+        #[arg(long, value_name = "W", default_value_t = 1920)]
+        width: u32,
+        /// Image height, pixels.
+        #[arg(long, value_name = "H", default_value_t = 1080)]
+        height: u32,
+        /// Horizontal field of view, degrees.
+        #[arg(long, value_name = "DEG", default_value_t = 60.0)]
+        fov: f64,
+        /// Also count real OS page faults (cold mapped runs).
+        #[arg(long)]
+        os: bool,
+        /// Where converted layouts are kept (default ~/.cache/relief/layouts).
+        #[arg(long, value_name = "DIR")]
+        cache_dir: Option<PathBuf>,
+        /// Print the results as JSON on stdout.
+        #[arg(long)]
+        json: bool,
+        /// Write the two figures (cumulative faults per frame; faults against τ) to this PNG.
+        #[arg(long, value_name = "OUT.png")]
+        plot: Option<PathBuf>,
+        /// No progress bars.
+        #[arg(long, short)]
+        quiet: bool,
+    },
     /// Generate a camera flight path over a terrain and write it as JSON.
     ///
     /// World coordinates are metres with the origin at the grid's south-west corner, x east, y
@@ -374,6 +425,34 @@ fn parse_spacing(s: &str) -> anyhow::Result<[f64; 2]> {
         Some([x, y]) if *x > 0.0 && *y > 0.0 && x.is_finite() && y.is_finite() => Ok([*x, *y]),
         _ => bail!("--spacing: expected positive metres as S or SX,SY, got '{s}'"),
     }
+}
+
+/// Bytes with an optional binary K/M/G suffix ("4096", "64K", "1.5G").
+fn parse_bytes(flag: &str, s: &str) -> anyhow::Result<u64> {
+    let t = s.trim();
+    let (num, mult) = match t.char_indices().last() {
+        Some((i, 'K' | 'k')) => (&t[..i], 1u64 << 10),
+        Some((i, 'M' | 'm')) => (&t[..i], 1 << 20),
+        Some((i, 'G' | 'g')) => (&t[..i], 1 << 30),
+        _ => (t, 1),
+    };
+    match num.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 && v * (mult as f64) < u64::MAX as f64 => Ok((v * mult as f64) as u64),
+        _ => bail!("{flag}: expected bytes such as 4096, 64K or 1G, got '{s}'"),
+    }
+}
+
+/// `--memory`: bytes, or "1/N" of `data_bytes`.
+fn parse_memory(s: &str, data_bytes: u64) -> anyhow::Result<u64> {
+    if let Some((a, b)) = s.split_once('/') {
+        match (a.trim().parse::<f64>(), b.trim().parse::<f64>()) {
+            (Ok(a), Ok(b)) if a > 0.0 && b > 0.0 && a.is_finite() && b.is_finite() => {
+                return Ok((data_bytes as f64 * a / b) as u64)
+            }
+            _ => bail!("--memory: expected bytes (64M) or a fraction of the terrain's data (1/16), got '{s}'"),
+        }
+    }
+    parse_bytes("--memory", s)
 }
 
 /// Writes a file through a temporary file beside it, so it is never half-written.
@@ -661,6 +740,126 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        Command::Layouts {
+            input,
+            path,
+            memory,
+            page_size,
+            tolerance,
+            layouts,
+            width,
+            height,
+            fov,
+            os,
+            cache_dir,
+            json,
+            plot,
+            quiet,
+        } => {
+            let page_bytes = parse_bytes("--page-size", &page_size)?;
+            let tolerances_px = tolerance
+                .split(',')
+                .map(|t| match t.trim().parse::<f64>() {
+                    Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+                    _ => Err(anyhow::anyhow!("--tolerance: expected positive pixels like 1,2,4, got '{tolerance}'")),
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let kinds = layouts
+                .split(',')
+                .map(|n| {
+                    LayoutKind::from_name(n.trim()).ok_or_else(|| {
+                        anyhow::anyhow!(
+                            "--layouts: unknown layout '{}' (choose from {})",
+                            n.trim(),
+                            LayoutKind::ALL.map(LayoutKind::name).join(", ")
+                        )
+                    })
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            relief::pager::PageGeometry::new(page_bytes)?;
+            let flight = FlightPath::load(&path)?;
+            if !input.exists() {
+                bail!("{}: no such file", input.display());
+            }
+            let cache_dir = cache_dir.unwrap_or_else(|| {
+                std::env::var_os("XDG_CACHE_HOME")
+                    .map(PathBuf::from)
+                    .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
+                    .unwrap_or_else(|| PathBuf::from("target"))
+                    .join("relief/layouts")
+            });
+            let first = terrain_in_layout(&input, kinds[0], &cache_dir, progress(quiet))?;
+            let memory_bytes = {
+                let t = TerrainFile::open(&first)?;
+                parse_memory(&memory, t.grid().vertices() * relief::format::RECORD_BYTES as u64)?
+            };
+            let cameras = (0..flight.frames.len())
+                .map(|k| {
+                    flight
+                        .camera(k, fov, width, height)
+                        .map_err(|e| anyhow::anyhow!("{}: frame {k}: {e}", path.display()))
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            let options = LayoutsOptions {
+                memory_bytes,
+                page_bytes,
+                tolerances_px,
+                layouts: kinds,
+                width_px: width,
+                height_px: height,
+                fov_x_deg: fov,
+                os,
+                progress: progress(quiet),
+            };
+            let report = run_layouts(&input, &cameras, &cache_dir, &options)?;
+            if let Some(out) = &plot {
+                write_layouts_plot(&report, out)?;
+            }
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                println!(
+                    "{}: {} frames, LRU cache of {} pages of {} B ({}), {}",
+                    report.input,
+                    report.frames,
+                    report.cache_pages,
+                    report.page_bytes,
+                    fmt_bytes(report.memory_bytes),
+                    report.os_note.as_deref().unwrap_or("model only")
+                );
+                println!(
+                    "{:<12} {:>6} {:>12} {:>10} {:>9} {:>12} {:>11} {:>8} {:>10} {:>9}{}",
+                    "layout",
+                    "τ px",
+                    "faults",
+                    "per frame",
+                    "max",
+                    "distinct pg",
+                    "lower bnd",
+                    "×bound",
+                    "×row-major",
+                    "ms/frame",
+                    if os { "  os major" } else { "" }
+                );
+                for r in &report.layouts {
+                    println!(
+                        "{:<12} {:>6} {:>12} {:>10.1} {:>9} {:>12} {:>11} {:>8.2} {:>10} {:>9.2}{}",
+                        r.layout,
+                        r.tolerance,
+                        r.faults,
+                        r.faults_per_frame_mean,
+                        r.faults_per_frame_max,
+                        r.distinct_pages,
+                        r.lower_bound,
+                        r.ratio_to_lower_bound,
+                        r.ratio_to_row_major.map_or("-".into(), |v| format!("{v:.3}")),
+                        r.refine_ms_per_frame,
+                        r.os.as_ref().map_or(String::new(), |o| format!("  {:>8}", o.major))
+                    );
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Path { kind } => {
             let (file, out, json) = match &kind {
                 PathCommand::Flyover { file, out, json, .. } | PathCommand::Orbit { file, out, json, .. } => {
@@ -738,4 +937,10 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// The two figures of `relief layouts --plot`.
+fn write_layouts_plot(report: &relief::layout_faults::LayoutsReport, out: &Path) -> anyhow::Result<()> {
+    let _ = (report, out);
+    bail!("--plot: not available yet")
 }
