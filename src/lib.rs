@@ -25,6 +25,7 @@ pub mod mem;
 pub mod mesh_check;
 pub mod metric;
 pub mod minimal;
+pub mod plot;
 pub mod preprocess;
 pub mod progress;
 pub mod refine;
