@@ -43,6 +43,9 @@ pub enum Error {
     /// No window can be opened here (no display); the message says how to fly headless.
     #[error("{0}")]
     NoDisplay(String),
+    /// A figure that cannot be drawn: nothing to plot, an unusable value, or a drawing failure.
+    #[error("{}: cannot draw the figure: {problem}", path.display())]
+    Plot { path: PathBuf, problem: String },
     #[error("interrupted")]
     Interrupted,
 }
@@ -58,6 +61,11 @@ impl Error {
     /// A DEM that could be opened but whose content is wrong.
     pub fn bad_dem(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
         Error::BadDem { path: path.into(), problem: problem.into() }
+    }
+
+    /// A figure (`plot`) that cannot be drawn.
+    pub fn plot(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
+        Error::Plot { path: path.into(), problem: problem.into() }
     }
 
     /// A flight-path file whose content is wrong.

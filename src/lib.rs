@@ -27,6 +27,7 @@ pub mod mesh_check;
 pub mod metric;
 pub mod minimal;
 pub mod pager;
+pub mod plot;
 pub mod preprocess;
 pub mod progress;
 pub mod refine;

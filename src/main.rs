@@ -20,7 +20,7 @@ use relief::fly::{bundled_terrain, fly_headless, render_still, save_png, Headles
 use relief::format::TerrainFile;
 use relief::inspect;
 use relief::layout::LayoutKind;
-use relief::layout_faults::{run_layouts, terrain_in_layout, LayoutsOptions};
+use relief::layout_faults::{plot_report, run_layouts, terrain_in_layout, LayoutsOptions};
 use relief::metric::MetricKind;
 use relief::progress::Progress;
 use relief::refine::RefineOptions;
@@ -813,7 +813,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             };
             let report = run_layouts(&input, &cameras, &cache_dir, &options)?;
             if let Some(out) = &plot {
-                write_layouts_plot(&report, out)?;
+                plot_report(&report, out)?;
             }
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
@@ -939,8 +939,3 @@ fn main() -> ExitCode {
     }
 }
 
-/// The two figures of `relief layouts --plot`.
-fn write_layouts_plot(report: &relief::layout_faults::LayoutsReport, out: &Path) -> anyhow::Result<()> {
-    let _ = (report, out);
-    bail!("--plot: not available yet")
-}
