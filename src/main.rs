@@ -938,4 +938,3 @@ fn main() -> ExitCode {
         }
     }
 }
-

@@ -47,6 +47,7 @@ fn instrumented_refinement_gives_the_plain_strip() {
             assert_eq!(a.vertices, b.vertices, "{kind} frame {k}");
             assert_eq!(a.vertices, c.vertices, "{kind} frame {k}");
             assert_eq!((ca.visited, ca.culled), (cb.visited, cb.culled));
+            assert_eq!((ca.visited, ca.culled), (cc.visited, cc.culled));
         }
         assert!(trace.stats().misses > 0);
     }
@@ -107,9 +108,14 @@ fn cli_reports_every_layout_and_os_faults_or_why_not() {
         .arg(&path)
         .args(["--memory", "1/16", "--tolerance", "1,4", "--os", "--json", "--cache-dir"])
         .arg(dir.path().join("cache"))
+        .arg("--plot")
+        .arg(dir.path().join("faults.png"))
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Two τ values: both panels.
+    let plot = image::open(dir.path().join("faults.png")).unwrap();
+    assert_eq!((plot.width(), plot.height()), relief::plot::TWO_PANEL_SIZE);
     let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let runs = r["layouts"].as_array().unwrap();
     assert_eq!(runs.len(), 10);
