@@ -18,7 +18,7 @@ use crate::error::{Error, Result};
 use crate::format::{TerrainFile, RECORD_BYTES};
 use crate::layout::LayoutKind;
 use crate::mem;
-use crate::pager::{drop_from_page_cache, LruCache, LruTrace, PageGeometry, PagedRecords, RecordSet};
+use crate::pager::{drop_from_page_cache, LruCache, LruTrace, MemoryCap, PageGeometry, PagedRecords, RecordSet};
 use crate::progress::Progress;
 use crate::refine::{RefineOptions, Refiner, Strip};
 
@@ -35,6 +35,8 @@ pub struct LayoutsOptions {
     pub fov_x_deg: f64,
     /// Also count the OS's page faults on cold, readahead-free mapped runs.
     pub os: bool,
+    /// Run the OS runs under a cgroup memory limit of this many bytes (see `pager::MemoryCap`).
+    pub os_cap_bytes: Option<u64>,
     pub progress: Progress,
 }
 
@@ -44,6 +46,9 @@ pub struct OsFaults {
     pub major: u64,
     pub minor: u64,
     pub major_per_frame_mean: f64,
+    pub major_per_frame_max: u64,
+    /// Major faults of each frame.
+    pub major_per_frame: Vec<u64>,
 }
 
 /// One layout at one tolerance.
@@ -170,13 +175,24 @@ pub fn run_os(path: &Path, cameras: &[Camera], tolerance_px: f64) -> Result<OsFa
     let mut refiner = Refiner::new(1)?;
     let mut strip = Strip::new();
     let (major0, minor0) = mem::page_faults();
+    let mut per_frame = Vec::with_capacity(cameras.len());
+    let mut last = major0;
     for camera in cameras {
         crate::cancel::check()?;
         refiner.refine_file(&terrain, camera, &options, &mut strip);
+        let (major, _) = mem::page_faults();
+        per_frame.push(major - last);
+        last = major;
     }
     let (major1, minor1) = mem::page_faults();
     let major = major1 - major0;
-    Ok(OsFaults { major, minor: minor1 - minor0, major_per_frame_mean: major as f64 / cameras.len().max(1) as f64 })
+    Ok(OsFaults {
+        major,
+        minor: minor1 - minor0,
+        major_per_frame_mean: major as f64 / cameras.len().max(1) as f64,
+        major_per_frame_max: per_frame.iter().copied().max().unwrap_or(0),
+        major_per_frame: per_frame,
+    })
 }
 
 /// Runs every layout at every tolerance over `cameras`.
@@ -208,14 +224,32 @@ pub fn run_layouts(
                 run_model(&terrain, cameras, tolerance, options.memory_bytes, geometry)?
             };
             if options.os {
-                match run_os(&path, cameras, tolerance) {
+                let cap = match options.os_cap_bytes {
+                    Some(b) => match MemoryCap::apply(b) {
+                        Ok(c) => Some(c),
+                        Err(e) => {
+                            os_note = Some(format!("OS faults not measured: {e}"));
+                            runs.push(run);
+                            bar.inc(1);
+                            continue;
+                        }
+                    },
+                    None => None,
+                };
+                let measured = run_os(&path, cameras, tolerance);
+                drop(cap);
+                match measured {
                     Ok(os) => {
                         run.os = Some(os);
                         os_note.get_or_insert_with(|| {
-                            "OS faults: file dropped from the page cache (posix_fadvise DONTNEED), mapped \
-                             afresh with madvise(MADV_RANDOM), major faults from getrusage; no memory cap \
-                             unless run under a cgroup limit (../shared/tools/memlimit.sh)"
-                                .to_string()
+                            let cap = match options.os_cap_bytes {
+                                Some(b) => format!("under a cgroup v1 memory cap of {b} bytes"),
+                                None => "without a memory cap (--os-cap sets one)".into(),
+                            };
+                            format!(
+                                "OS faults: file dropped from the page cache (posix_fadvise DONTNEED), mapped \
+                                 afresh with madvise(MADV_RANDOM), major faults from getrusage, {cap}"
+                            )
                         });
                     }
                     Err(e) => os_note = Some(format!("OS faults not measured: {e}")),

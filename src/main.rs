@@ -332,6 +332,10 @@ enum Command {
         /// Also count real OS page faults (cold mapped runs).
         #[arg(long)]
         os: bool,
+        /// With --os: run the cold runs under a cgroup v1 memory limit of BYTES (K/M/G) on what
+        /// they allocate and page in (needs root and a v1 memory controller; says why not).
+        #[arg(long, value_name = "BYTES", requires = "os")]
+        os_cap: Option<String>,
         /// Where converted layouts are kept (default ~/.cache/relief/layouts).
         #[arg(long, value_name = "DIR")]
         cache_dir: Option<PathBuf>,
@@ -751,11 +755,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             height,
             fov,
             os,
+            os_cap,
             cache_dir,
             json,
             plot,
             quiet,
         } => {
+            let os_cap_bytes = os_cap.as_deref().map(|c| parse_bytes("--os-cap", c)).transpose()?;
             let page_bytes = parse_bytes("--page-size", &page_size)?;
             let tolerances_px = tolerance
                 .split(',')
@@ -809,6 +815,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 height_px: height,
                 fov_x_deg: fov,
                 os,
+                os_cap_bytes,
                 progress: progress(quiet),
             };
             let report = run_layouts(&input, &cameras, &cache_dir, &options)?;

@@ -302,6 +302,50 @@ pub fn drop_from_page_cache(path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// A cgroup v1 memory limit on this process while the value lives (DESIGN.md: OS counts "under
+/// a cgroup memory limit where the machine allows one"). Charges made before the move stay where
+/// they were (v1 does not move them by default), so the limit applies to what is allocated and
+/// paged in afterwards: chiefly the page cache of the file a cold run maps.
+pub struct MemoryCap {
+    dir: std::path::PathBuf,
+    parent: std::path::PathBuf,
+}
+
+impl MemoryCap {
+    /// Creates a child of this process's memory cgroup limited to `limit_bytes` and moves the
+    /// process into it; says why where the machine has no writable cgroup v1 memory controller.
+    pub fn apply(limit_bytes: u64) -> Result<MemoryCap> {
+        let unsupported = |why: String| Error::InvalidArgument(format!("cannot set a memory cap: {why}"));
+        let cgroups =
+            std::fs::read_to_string("/proc/self/cgroup").map_err(|e| unsupported(format!("/proc/self/cgroup: {e}")))?;
+        let rel = cgroups
+            .lines()
+            .find_map(|l| {
+                let mut f = l.splitn(3, ':');
+                let (_, controllers, path) = (f.next()?, f.next()?, f.next()?);
+                controllers.split(',').any(|c| c == "memory").then(|| path.to_string())
+            })
+            .ok_or_else(|| unsupported("no cgroup v1 memory controller for this process".into()))?;
+        let parent = Path::new("/sys/fs/cgroup/memory").join(rel.trim_start_matches('/'));
+        let dir = parent.join(format!("relief.{}", std::process::id()));
+        std::fs::create_dir(&dir).map_err(|e| unsupported(format!("{}: {e}", dir.display())))?;
+        let cap = MemoryCap { dir, parent };
+        std::fs::write(cap.dir.join("memory.limit_in_bytes"), limit_bytes.to_string())
+            .map_err(|e| unsupported(format!("{}: {e}", cap.dir.join("memory.limit_in_bytes").display())))?;
+        std::fs::write(cap.dir.join("cgroup.procs"), std::process::id().to_string())
+            .map_err(|e| unsupported(format!("{}: {e}", cap.dir.join("cgroup.procs").display())))?;
+        Ok(cap)
+    }
+}
+
+impl Drop for MemoryCap {
+    fn drop(&mut self) {
+        // Back to the parent group, then remove ours (empty once we left).
+        let _ = std::fs::write(self.parent.join("cgroup.procs"), std::process::id().to_string());
+        let _ = std::fs::remove_dir(&self.dir);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -146,6 +146,37 @@ fn cli_reports_every_layout_and_os_faults_or_why_not() {
     }
 }
 
+/// `--os-cap` runs the cold runs under a cgroup memory limit, or says plainly why it cannot
+/// (no root, no cgroup v1 memory controller) and still reports the model.
+#[test]
+fn os_cap_works_or_says_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = convert_to("lidar_1m_f32.tif", dir.path(), LayoutKind::Hz);
+    let path = dir.path().join("p.json");
+    flyover(&t, &FlyoverOptions::new(10)).unwrap().save(&path).unwrap();
+    let o = relief()
+        .arg("layouts")
+        .arg(t.path())
+        .arg("--path")
+        .arg(&path)
+        .args(["--memory", "1/16", "--layouts", "hz", "--os", "--os-cap", "64M", "--json", "--cache-dir"])
+        .arg(dir.path().join("cache"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let note = r["os_note"].as_str().unwrap();
+    let run = &r["layouts"][0];
+    assert!(run["faults"].as_u64().unwrap() > 0);
+    if note.contains("under a cgroup v1 memory cap of 67108864 bytes") {
+        assert!(run["os"]["major"].as_u64().unwrap() > 0, "{run}");
+        assert_eq!(run["os"]["major_per_frame"].as_array().unwrap().len(), 10);
+    } else {
+        assert!(note.starts_with("OS faults not measured: cannot set a memory cap: "), "{note}");
+        assert!(run["os"].is_null());
+    }
+}
+
 #[test]
 fn bad_input_fails_in_one_line() {
     let dir = tempfile::tempdir().unwrap();
