@@ -367,33 +367,18 @@ enum PathCommand {
     /// inside the corners), climbing over the highest terrain within 3% of the diagonal around the
     /// eye, looking ahead 15° below the horizon.
     Flyover {
-        /// Terrain file (.relief).
-        file: PathBuf,
-        /// Number of frames (at least 1).
-        #[arg(long, value_name = "N")]
-        frames: usize,
-        /// Flight-path file to write (replaced atomically if it exists).
-        #[arg(long, value_name = "PATH.json")]
-        out: PathBuf,
+        #[command(flatten)]
+        common: PathArgs,
         /// Least height of the eye above the highest terrain around it, metres [default: 2% of
         /// the DEM's diagonal].
         #[arg(long, value_name = "M")]
         clearance: Option<f64>,
-        /// Print the summary as JSON on stdout.
-        #[arg(long)]
-        json: bool,
     },
     /// A circle around the DEM's centre at constant altitude, one full turn counter-clockwise from
     /// due east, looking at the centre (at the terrain's height there).
     Orbit {
-        /// Terrain file (.relief).
-        file: PathBuf,
-        /// Number of frames (at least 1), evenly spaced over the turn.
-        #[arg(long, value_name = "N")]
-        frames: usize,
-        /// Flight-path file to write (replaced atomically if it exists).
-        #[arg(long, value_name = "PATH.json")]
-        out: PathBuf,
+        #[command(flatten)]
+        common: PathArgs,
         /// Horizontal distance of the eye from the centre, metres [default: 0.6 × half the DEM's
         /// diagonal].
         #[arg(long, value_name = "M")]
@@ -401,10 +386,23 @@ enum PathCommand {
         /// Eye height (world z), metres [default: highest terrain + 0.3 × half the DEM's diagonal].
         #[arg(long, value_name = "M", allow_hyphen_values = true)]
         altitude: Option<f64>,
-        /// Print the summary as JSON on stdout.
-        #[arg(long)]
-        json: bool,
     },
+}
+
+/// What every `relief path` generator takes.
+#[derive(Args)]
+struct PathArgs {
+    /// Terrain file (.relief).
+    file: PathBuf,
+    /// Number of frames (at least 1; an orbit spaces them evenly over the turn).
+    #[arg(long, value_name = "N")]
+    frames: usize,
+    /// Flight-path file to write (replaced atomically if it exists).
+    #[arg(long, value_name = "PATH.json")]
+    out: PathBuf,
+    /// Print the summary as JSON on stdout.
+    #[arg(long)]
+    json: bool,
 }
 
 /// `--metric` values: the library's metric names.
@@ -869,17 +867,17 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Path { kind } => {
             let (file, out, json) = match &kind {
-                PathCommand::Flyover { file, out, json, .. } | PathCommand::Orbit { file, out, json, .. } => {
-                    (file, out, *json)
+                PathCommand::Flyover { common, .. } | PathCommand::Orbit { common, .. } => {
+                    (&common.file, &common.out, common.json)
                 }
             };
             let terrain = TerrainFile::open(file)?;
             let path = match &kind {
-                PathCommand::Flyover { frames, clearance, .. } => {
-                    flyover(&terrain, &FlyoverOptions { frames: *frames, clearance_m: *clearance })?
+                PathCommand::Flyover { common, clearance } => {
+                    flyover(&terrain, &FlyoverOptions { frames: common.frames, clearance_m: *clearance })?
                 }
-                PathCommand::Orbit { frames, radius, altitude, .. } => {
-                    orbit(&terrain, &OrbitOptions { frames: *frames, radius_m: *radius, altitude_m: *altitude })?
+                PathCommand::Orbit { common, radius, altitude } => {
+                    orbit(&terrain, &OrbitOptions { frames: common.frames, radius_m: *radius, altitude_m: *altitude })?
                 }
             };
             path.save(out)?;
