@@ -207,6 +207,17 @@ fn fs_probe(in: VertexOut) -> Probe {
     return out;
 }
 
+// Overlay lines in world space (the frozen view's frustum), drawn over everything.
+@vertex
+fn vs_overlay(@location(0) world: vec3<f32>) -> @builtin(position) vec4<f32> {
+    return frame.clip_from_rel * vec4<f32>(world - frame.eye_in_world.xyz, 1.0);
+}
+
+@fragment
+fn fs_overlay() -> @location(0) vec4<f32> {
+    return vec4<f32>(0.95, 0.15, 0.1, 1.0);
+}
+
 // Sky: one triangle covering the screen at the far plane (depth 0 with reversed z).
 struct SkyOut {
     @builtin(position) clip: vec4<f32>,

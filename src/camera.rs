@@ -90,9 +90,46 @@ impl Camera {
     }
 }
 
+impl Camera {
+    /// The frustum's edges out to `distance_m` along the view direction, as line segments (eye to
+    /// the four corners, then the far rectangle): what `relief fly` draws around a frozen view.
+    pub fn frustum_outline(&self, distance_m: f64) -> [[DVec3; 2]; 8] {
+        let (r, u, f) = self.basis();
+        let tx = (self.fov_x_deg.to_radians() / 2.0).tan() * distance_m;
+        let ty = (self.fov_y_deg().to_radians() / 2.0).tan() * distance_m;
+        let e = self.eye_in_world;
+        let c = f * distance_m;
+        let corners =
+            [c + r * tx + u * ty, c - r * tx + u * ty, c - r * tx - u * ty, c + r * tx - u * ty].map(|v| e + v);
+        let mut lines = [[e, e]; 8];
+        for k in 0..4 {
+            lines[k] = [e, corners[k]];
+            lines[4 + k] = [corners[k], corners[(k + 1) % 4]];
+        }
+        lines
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn frustum_outline_runs_along_the_side_planes() {
+        let c = cam();
+        let n = c.frustum_normals();
+        let lines = c.frustum_outline(50.0);
+        // Each corner ray lies on two side planes (and inside the others).
+        for [a, b] in &lines[..4] {
+            assert_eq!(*a, c.eye_in_world);
+            let d: Vec<f64> = n[1..].iter().map(|n| n.dot(*b - c.eye_in_world)).collect();
+            assert_eq!(d.iter().filter(|x| x.abs() < 1e-9).count(), 2, "{d:?}");
+            assert!(d.iter().all(|x| *x > -1e-9));
+            assert!(((*b - c.eye_in_world).dot(c.forward()) - 50.0).abs() < 1e-9);
+        }
+        // The far rectangle is closed.
+        assert_eq!(lines[7][1], lines[4][0]);
+    }
 
     fn cam() -> Camera {
         Camera::new(DVec3::new(0.0, 0.0, 10.0), DVec3::new(100.0, 0.0, 10.0), DVec3::Z, 90.0, 200, 100).unwrap()

@@ -407,6 +407,15 @@ impl State {
         if let Some(rec) = &mut self.recording {
             rec.push(PathFrame { eye: cam.eye_in_world.to_array(), look: cam.look_at_world.to_array() });
         }
+        // Frozen: outline the view the drawn strip was refined (and culled) for.
+        let outline = match (self.frozen, self.refined_camera) {
+            (true, Some(c)) => {
+                let [ex, ey] = terrain.header().extent_m();
+                c.frustum_outline(0.3 * ex.max(ey)).to_vec()
+            }
+            _ => Vec::new(),
+        };
+        self.renderer.set_overlay_lines(&self.gpu, &outline);
         if !self.frozen {
             self.seq += 1;
             let options = RefineOptions { tolerance_px: self.tolerance_px, cull: self.cull, ..o.refine };

@@ -204,7 +204,8 @@ fn fly_without_a_display_explains_how_to_fly_headless() {
 }
 
 /// The window opens, draws frames with the panel and closes cleanly under Xvfb; keys work: R
-/// starts and stops recording a path that loads back, P saves a screenshot, Escape quits. Skipped, with a note,
+/// starts and stops recording a path that loads back, F freezes, T shows the wireframe, P saves a
+/// screenshot, Escape quits. Skipped, with a note,
 /// where xvfb-run or xdotool is not installed (tools/test.sh installs both).
 #[test]
 fn fly_window_runs_under_xvfb_and_keys_record_and_screenshot() {
@@ -234,6 +235,8 @@ fn fly_window_runs_under_xvfb_and_keys_record_and_screenshot() {
           xdotool key r; sleep 1.5; xdotool key r; sleep 0.5
           ls "$OUT"/*.json >/dev/null 2>&1 && break
         done
+        # Freeze (draws the frozen view's frustum) and wireframe, then a screenshot of that.
+        xdotool key f; xdotool key t; sleep 0.5
         for _ in 1 2 3; do xdotool key p; sleep 1; ls "$OUT"/*.png >/dev/null 2>&1 && break; done
         for _ in 1 2 3; do
           xdotool key Escape

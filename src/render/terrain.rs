@@ -138,6 +138,10 @@ pub struct TerrainRenderer {
     wire_pipelines: [wgpu::RenderPipeline; 2],
     wire_morph_pipelines: [wgpu::RenderPipeline; 2],
     sky_pipeline: wgpu::RenderPipeline,
+    overlay_pipeline: wgpu::RenderPipeline,
+    /// World-space line segments drawn over the frame (see [`Self::set_overlay_lines`]).
+    overlay: VertexBuffer,
+    overlay_vertices: u32,
     probe_pipeline: wgpu::RenderPipeline,
     vertices: VertexBuffer,
     morph: VertexBuffer,
@@ -354,6 +358,22 @@ impl TerrainRenderer {
         });
         // The sky fills what the terrain left at the cleared (infinite) depth.
         let sky_pipeline = pipeline("sky", "vs_sky", &[], TriangleList, depth(false, Equal), "fs_sky", &colour_target);
+        const OVERLAY_ATTR: [wgpu::VertexAttribute; 1] =
+            [wgpu::VertexAttribute { format: wgpu::VertexFormat::Float32x3, offset: 0, shader_location: 0 }];
+        let overlay_layout = wgpu::VertexBufferLayout {
+            array_stride: 12,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &OVERLAY_ATTR,
+        };
+        let overlay_pipeline = pipeline(
+            "overlay",
+            "vs_overlay",
+            &[Some(overlay_layout)],
+            wgpu::PrimitiveTopology::LineList,
+            depth(false, wgpu::CompareFunction::Always),
+            "fs_overlay",
+            &colour_target,
+        );
         let probe_pipeline = pipeline(
             "probe",
             "vs_terrain",
@@ -380,6 +400,9 @@ impl TerrainRenderer {
             wire_pipelines,
             wire_morph_pipelines,
             sky_pipeline,
+            overlay_pipeline,
+            overlay: VertexBuffer::new(device, "relief overlay", 256),
+            overlay_vertices: 0,
             probe_pipeline,
             vertices,
             morph,
@@ -415,6 +438,14 @@ impl TerrainRenderer {
         self.triangles = strip.triangle_counts().0;
         self.last_upload_bytes = (vbytes.len() + mbytes.len()) as u64;
         self.last_upload_bytes
+    }
+
+    /// Line segments (world metres) to draw over the next frames; empty to clear. Positions are
+    /// sent as f32, so keep them within a few hundred kilometres of the eye.
+    pub fn set_overlay_lines(&mut self, gpu: &Gpu, lines: &[[glam::DVec3; 2]]) {
+        let v: Vec<[f32; 3]> = lines.iter().flatten().map(|p| p.as_vec3().to_array()).collect();
+        self.overlay.write(&gpu.device, &gpu.queue, bytemuck::cast_slice(&v));
+        self.overlay_vertices = v.len() as u32;
     }
 
     /// Bytes of the last strip upload.
@@ -525,6 +556,11 @@ impl TerrainRenderer {
         }
         pass.set_pipeline(&self.sky_pipeline);
         pass.draw(0..3, 0..1);
+        if self.overlay_vertices > 0 {
+            pass.set_pipeline(&self.overlay_pipeline);
+            pass.set_vertex_buffer(0, self.overlay.buffer.slice(..self.overlay_vertices as u64 * 12));
+            pass.draw(0..self.overlay_vertices, 0..1);
+        }
         FRAME_UNIFORM_BYTES
     }
 
