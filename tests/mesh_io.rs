@@ -110,7 +110,7 @@ fn all_formats(dir: &Path) -> Vec<(PathBuf, MeshFormat)> {
                      property uchar alpha\nelement face 3\nproperty list uchar uint vertex_index\nend_header\n\
                      0 0 0 9\n1 0 0 9\n1 1 0 9\n0 1 0 9\n0.5 0.5 0.75 9\n4 0 1 2 3\n3 0 1 4\n3 1 1 2\n";
     // Corner forms v, v/vt, v//vn, v/vt/vn and negative indices; a group in between.
-    let obj = "# cube\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\ng one\nf 1/1 2//1 3/1/1 -2\n\
+    let obj = "# cube\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\ng one\nf 1/1 2//1 3/1/1 -1\n\
                g two\nv 0.5 0.5 0.75\nf 1 2 -1\nf 2 2 3\n";
     vec![
         (write(dir, "m.off", off.as_bytes()), MeshFormat::Off),
@@ -190,7 +190,10 @@ fn from_terrain_round_trips_through_binary_ply() {
     // World metres: corner posts and heights.
     assert_eq!(mesh.positions[0], [x0 as f64 * sx, y0 as f64 * sy, f.record_at(x0, y0).z as f64]);
     let last = (x1 - 1, y1 - 1);
-    assert_eq!(mesh.positions[w * h - 1], [last.0 as f64 * sx, last.1 as f64 * sy, f.record_at(last.0, last.1).z as f64]);
+    assert_eq!(
+        mesh.positions[w * h - 1],
+        [last.0 as f64 * sx, last.1 as f64 * sy, f.record_at(last.0, last.1).z as f64]
+    );
 
     // Through the CLI: binary little-endian PLY, read back identically.
     let ply = dir.path().join("small.ply");
@@ -236,13 +239,25 @@ fn malformed_inputs_give_one_line_errors() {
         ("truncated.ply", le[..le.len() - 10].to_vec(), "truncated PLY data: element 'face' 2 of 3"),
         ("truncated_vertices.ply", le[..le.len() - 77].to_vec(), "truncated PLY data: element 'vertex' 4 of 5"),
         ("bad_header.off", b"OFF\n5 three 0\n".to_vec(), "bad OFF header (line 2): face count 'three' is not a count"),
-        ("bad_magic.off", b"# c\nOFX\n1 1 0\n".to_vec(), "unknown mesh format (expected a 'ply' or 'OFF' header, or an .obj file)"),
+        (
+            "bad_magic.off",
+            b"# c\nOFX\n1 1 0\n".to_vec(),
+            "unknown mesh format (expected a 'ply' or 'OFF' header, or an .obj file)",
+        ),
         ("coff.off", b"COFF\n1 1 0\n".to_vec(), "unsupported OFF variant (only plain 'OFF' is read)"),
-        ("range.off", b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n".to_vec(), "face 0: vertex index 3 out of range (3 vertices)"),
+        (
+            "range.off",
+            b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n".to_vec(),
+            "face 0: vertex index 3 out of range (3 vertices)",
+        ),
         ("nan.off", b"OFF\n3 1 0\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n".to_vec(), "vertex 1: non-finite coordinate NaN"),
         ("short.off", b"OFF\n3 1 0\n0 0 0\n1 0 0\n".to_vec(), "truncated OFF: 2 of 3 vertices"),
         ("none.off", b"OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n".to_vec(), "no triangles (no faces)"),
-        ("degenerate.off", b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 1\n".to_vec(), "no triangles (every face is degenerate)"),
+        (
+            "degenerate.off",
+            b"OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 1\n".to_vec(),
+            "no triangles (every face is degenerate)",
+        ),
         (
             "range.ply",
             b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
@@ -263,9 +278,13 @@ fn malformed_inputs_give_one_line_errors() {
             b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 0\n".to_vec(),
             "bad PLY header: the vertex element has no scalar property 'z'",
         ),
-        ("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n".to_vec(), "line 4: vertex index 4 out of range (3 vertices)"),
+        (
+            "range.obj",
+            b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n".to_vec(),
+            "line 4: vertex index 4 out of range (3 vertices)",
+        ),
         ("nan.obj", b"v 0 0 0\nv NaN 0 0\n".to_vec(), "line 2: vertex 1: non-finite coordinate NaN"),
-        ("bad.gz", vec![0x1f, 0x8b, 8, 0, 0, 0], "gzip: failed to fill whole buffer"),
+        ("bad.gz", vec![0x1f, 0x8b, 8, 0, 0, 0], "gzip: unexpected end of file"),
     ];
     let mut failures = Vec::new();
     for (name, bytes, want) in cases {
@@ -278,7 +297,10 @@ fn malformed_inputs_give_one_line_errors() {
 
     // The CLI prints the same as one line, prefixed with `relief: `.
     let p = d.join("range.off");
-    let out = Command::new(env!("CARGO_BIN_EXE_relief")).args(["mesh".as_ref(), "info".as_ref(), p.as_os_str()]).output().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_relief"))
+        .args(["mesh".as_ref(), "info".as_ref(), p.as_os_str()])
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(stderr.trim_end(), format!("relief: {}: face 0: vertex index 3 out of range (3 vertices)", p.display()));

@@ -13,14 +13,14 @@ pub(super) fn parse(bytes: &[u8], b: &mut Builder) -> Result<(), String> {
         .map(|(i, l)| (i + 1, l.split('#').next().unwrap_or_default().trim()))
         .filter(|(_, l)| !l.is_empty());
 
-    let (_, first) = lines.next().ok_or("bad OFF header: no 'OFF' line")?;
+    let (first_line, first) = lines.next().ok_or("bad OFF header: no 'OFF' line")?;
     let mut words = first.split_ascii_whitespace();
     match words.next() {
         Some("OFF") => {}
         other => return Err(format!("bad OFF header: expected 'OFF', found '{}'", other.unwrap_or_default())),
     }
     let mut counts: Vec<&str> = words.collect();
-    let mut counts_line = 1;
+    let mut counts_line = first_line;
     if counts.is_empty() {
         let (n, l) = lines.next().ok_or("bad OFF header: missing the vertex and face counts")?;
         counts = l.split_ascii_whitespace().collect();
@@ -28,7 +28,8 @@ pub(super) fn parse(bytes: &[u8], b: &mut Builder) -> Result<(), String> {
     }
     let parse_count = |s: Option<&&str>, what: &str| -> Result<usize, String> {
         let s = s.ok_or_else(|| format!("bad OFF header (line {counts_line}): missing the {what} count"))?;
-        s.parse::<usize>().map_err(|_| format!("bad OFF header (line {counts_line}): {what} count '{s}' is not a count"))
+        s.parse::<usize>()
+            .map_err(|_| format!("bad OFF header (line {counts_line}): {what} count '{s}' is not a count"))
     };
     let vertices = parse_count(counts.first(), "vertex")?;
     let faces = parse_count(counts.get(1), "face")?;

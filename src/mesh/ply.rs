@@ -167,7 +167,8 @@ fn parse_header(bytes: &[u8]) -> Result<(MeshFormat, Vec<Element>, usize), Strin
                 })
             }
             ["element", name, count] => {
-                let count = count.parse().map_err(|_| bad(format!("element '{name}' count '{count}' is not a count")))?;
+                let count =
+                    count.parse().map_err(|_| bad(format!("element '{name}' count '{count}' is not a count")))?;
                 elements.push(Element { name: name.to_string(), count, props: Vec::new() });
             }
             ["property", "list", count, item, name] => {
@@ -206,9 +207,10 @@ fn read_body<B: Body>(body: &mut B, elements: &[Element], b: &mut Builder) -> Re
 
     for el in elements {
         let indices = if el.name == "face" {
-            let i = el.props.iter().position(|(n, p)| {
-                (n == "vertex_indices" || n == "vertex_index") && matches!(p, Prop::List { .. })
-            });
+            let i = el
+                .props
+                .iter()
+                .position(|(n, p)| (n == "vertex_indices" || n == "vertex_index") && matches!(p, Prop::List { .. }));
             Some(i.ok_or("bad PLY header: the face element has no 'vertex_indices' list")?)
         } else {
             None
@@ -241,7 +243,9 @@ fn read_body<B: Body>(body: &mut B, elements: &[Element], b: &mut Builder) -> Re
                             let v = body.value(item).map_err(at)?;
                             if keep {
                                 if !(v >= 0.0 && v <= u32::MAX as f64 && v.fract() == 0.0) {
-                                    return Err(format!("face {i}: vertex index {v} out of range ({vertices} vertices)"));
+                                    return Err(format!(
+                                        "face {i}: vertex index {v} out of range ({vertices} vertices)"
+                                    ));
                                 }
                                 b.corners.push(v as u32);
                             }

@@ -31,13 +31,14 @@ pub fn terrain_mesh(file: &TerrainFile, step: u32) -> Result<Mesh> {
         return Err(Error::bad_mesh(file.path(), format!("valid window {w} x {ht} posts has no cell to triangulate")));
     }
     if (w as u64) * (ht as u64) > u32::MAX as u64 {
-        return Err(Error::bad_mesh(file.path(), format!("{w} x {ht} posts exceed 32-bit indices; use a larger --step")));
+        return Err(Error::bad_mesh(
+            file.path(),
+            format!("{w} x {ht} posts exceed 32-bit indices; use a larger --step"),
+        ));
     }
     let [sx, sy] = h.spacing_m;
-    let mut mesh = Mesh {
-        positions: Vec::with_capacity(w * ht),
-        triangles: Vec::with_capacity(2 * (w - 1) * (ht - 1)),
-    };
+    let mut mesh =
+        Mesh { positions: Vec::with_capacity(w * ht), triangles: Vec::with_capacity(2 * (w - 1) * (ht - 1)) };
     for &gy in &ys {
         for &gx in &xs {
             mesh.positions.push([gx as f64 * sx, gy as f64 * sy, file.record_at(gx, gy).z as f64]);
