@@ -56,9 +56,9 @@ impl Mesh {
         let first = *self.positions.first()?;
         let mut b = Bounds { min: first, max: first };
         for p in &self.positions {
-            for k in 0..3 {
-                b.min[k] = b.min[k].min(p[k]);
-                b.max[k] = b.max[k].max(p[k]);
+            for (k, &c) in p.iter().enumerate() {
+                b.min[k] = b.min[k].min(c);
+                b.max[k] = b.max[k].max(c);
             }
         }
         Some(b)
