@@ -35,6 +35,9 @@ pub enum Error {
     /// A flight-path file (`relief path`) that could not be parsed or holds an unusable frame.
     #[error("{}: {problem}", path.display())]
     BadPath { path: PathBuf, problem: String },
+    /// A mesh file (`mesh::read_mesh`) that could not be parsed or holds unusable data.
+    #[error("{}: {problem}", path.display())]
+    BadMesh { path: PathBuf, problem: String },
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
     /// No usable GPU, or the GPU refused a request (creation, limits, readback).
@@ -66,6 +69,11 @@ impl Error {
     /// A figure (`plot`) that cannot be drawn.
     pub fn plot(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
         Error::Plot { path: path.into(), problem: problem.into() }
+    }
+
+    /// A mesh file whose content is wrong.
+    pub fn bad_mesh(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
+        Error::BadMesh { path: path.into(), problem: problem.into() }
     }
 
     /// A flight-path file whose content is wrong.

@@ -23,6 +23,7 @@ pub mod fly;
 pub mod format;
 pub mod inspect;
 pub mod mem;
+pub mod mesh;
 pub mod mesh_check;
 pub mod metric;
 pub mod minimal;

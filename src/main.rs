@@ -359,6 +359,50 @@ enum Command {
         #[command(subcommand)]
         kind: PathCommand,
     },
+    /// Triangle meshes for the mesh backends: inspect one, or export a terrain as one.
+    Mesh {
+        #[command(subcommand)]
+        kind: MeshCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum MeshCommand {
+    /// Read a mesh (OFF, PLY ASCII/binary, OBJ; optionally gzip'd) and print its vertices,
+    /// triangles, bounds and the degenerate triangles dropped.
+    Info {
+        /// Mesh file.
+        file: PathBuf,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write a terrain's valid window as a regular triangle mesh in world metres (x = gx·spacing,
+    /// y = gy·spacing, z = height; two triangles per cell), binary little-endian PLY, replaced
+    /// atomically.
+    FromTerrain {
+        /// Terrain file (.relief).
+        terrain: PathBuf,
+        /// Output mesh (.ply).
+        output: PathBuf,
+        /// Take every N-th post (the window's last row and column are always kept).
+        #[arg(long, value_name = "N", default_value_t = 1)]
+        step: u32,
+    },
+}
+
+/// `relief mesh info` as printed with `--json`.
+#[derive(serde::Serialize)]
+struct MeshInfo {
+    file: String,
+    format: relief::mesh::MeshFormat,
+    gzip: bool,
+    vertices: usize,
+    triangles: usize,
+    faces: u64,
+    degenerate_dropped: u64,
+    bounds: Option<relief::mesh::Bounds>,
+    read_ms: f64,
 }
 
 #[derive(Subcommand)]
@@ -902,6 +946,56 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     s.length_m
                 );
             }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Mesh { kind: MeshCommand::Info { file, json } } => {
+            let start = std::time::Instant::now();
+            let (mesh, report) = relief::mesh::read_mesh_with_report(&file)?;
+            let info = MeshInfo {
+                file: file.display().to_string(),
+                format: report.format,
+                gzip: report.gzip,
+                vertices: mesh.positions.len(),
+                triangles: mesh.triangles.len(),
+                faces: report.faces,
+                degenerate_dropped: report.degenerate_dropped,
+                bounds: mesh.bounds(),
+                read_ms: start.elapsed().as_secs_f64() * 1e3,
+            };
+            if json {
+                println!("{}", serde_json::to_string_pretty(&info)?);
+            } else {
+                println!(
+                    "{}: {}{}, {} vertices, {} triangles ({} faces, {} degenerate dropped), read in {:.1} ms",
+                    info.file,
+                    info.format.name(),
+                    if info.gzip { ", gzip" } else { "" },
+                    info.vertices,
+                    info.triangles,
+                    info.faces,
+                    info.degenerate_dropped,
+                    info.read_ms
+                );
+                if let Some(b) = info.bounds {
+                    println!("  bounds: min {:?} max {:?}", b.min, b.max);
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Mesh { kind: MeshCommand::FromTerrain { terrain, output, step } } => {
+            if step == 0 {
+                bail!("--step must be at least 1");
+            }
+            let f = TerrainFile::open(&terrain)?;
+            let mesh = relief::mesh::terrain_mesh(&f, step)?;
+            let comment = format!("relief mesh from-terrain {} --step {step}", terrain.display());
+            relief::mesh::write_ply_binary(&mesh, &output, &comment)?;
+            println!(
+                "{}: {} vertices, {} triangles (binary little-endian PLY)",
+                output.display(),
+                mesh.positions.len(),
+                mesh.triangles.len()
+            );
             Ok(ExitCode::SUCCESS)
         }
         Command::Verify { file, json, quiet } => {
