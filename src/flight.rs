@@ -155,26 +155,7 @@ impl FlightPath {
         }
         text.push_str("]\n");
 
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let mut tmp = tempfile::Builder::new()
-            .prefix(&format!(".{name}."))
-            .suffix(".tmp")
-            // A path file is an ordinary document: readable by others, as the umask allows
-            // (tempfile's default, 0600, is meant for secrets).
-            .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644))
-            .tempfile_in(dir)
-            .map_err(|e| Error::io(path, e))?;
-        tmp.write_all(text.as_bytes()).map_err(|e| Error::io(path, e))?;
-        tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
-        tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-        if let Ok(d) = std::fs::File::open(dir) {
-            let _ = d.sync_all(); // make the rename durable where the platform allows
-        }
-        Ok(())
+        crate::atomic_file::write(path, |w| w.write_all(text.as_bytes()))
     }
 
     /// The camera of frame `k`: up is +z, or +y when the view is (nearly) vertical, where +z

@@ -325,19 +325,9 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// Writes `image` to `path` as PNG through a temporary file (never half-written).
+/// Writes `image` to `path` as PNG, atomically (never half-written).
 pub fn save_png(image: &image::RgbaImage, path: &Path) -> Result<()> {
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let tmp = tempfile::Builder::new()
-        .prefix(".relief-")
-        .suffix(".png.tmp")
-        .tempfile_in(dir)
-        .map_err(|e| Error::io(path, e))?;
-    image
-        .write_to(&mut std::io::BufWriter::new(tmp.as_file()), image::ImageFormat::Png)
-        .map_err(|e| Error::io(path, std::io::Error::other(e)))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    Ok(())
+    crate::atomic_file::write_png(image, path)
 }
 
 /// Renders `cameras` one frame each, offscreen, and reports per-frame figures.

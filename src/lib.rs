@@ -14,6 +14,7 @@ pub mod layout;
 pub mod layout_faults;
 
 pub use error::{Error, Result};
+pub mod atomic_file;
 pub mod camera;
 pub mod cancel;
 pub mod convert;

@@ -2,7 +2,7 @@
 //! (`relief: FILE: problem`) with a non-zero exit status.
 
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 
@@ -501,16 +501,6 @@ fn parse_memory(s: &str, data_bytes: u64) -> anyhow::Result<u64> {
     parse_bytes("--memory", s)
 }
 
-/// Writes a file through a temporary file beside it, so it is never half-written.
-fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    use std::io::Write;
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    tmp.write_all(bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    tmp.persist(path).map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e.error))?;
-    Ok(())
-}
-
 fn progress(quiet: bool) -> Progress {
     Progress::new(!quiet && std::io::stderr().is_terminal())
 }
@@ -735,7 +725,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let report = fly_headless(terrain, &cameras, &options)?;
             if let Some(out) = &stats {
                 let text = serde_json::to_string_pretty(&report)?;
-                write_atomic(out, text.as_bytes())?;
+                relief::atomic_file::write(out, |w| std::io::Write::write_all(w, text.as_bytes()))?;
             }
             let s = &report.summary;
             if json {

@@ -97,7 +97,7 @@ pub fn write_layouts_figure(out: &Path, fig: &Figure) -> Result<()> {
     }
     let image = image::RgbImage::from_raw(w, h, buf)
         .ok_or_else(|| Error::plot(out, "the drawing buffer does not match the image size"))?;
-    save_png_atomically(&image, out)
+    crate::atomic_file::write_png(&image, out)
 }
 
 /// The colour of a layout's curves: fixed for the five layouts (`row-major`, `tiled`,
@@ -301,34 +301,6 @@ fn draw_tolerance_panel(area: &Area<'_>, series: &[ToleranceSeries], taus: &[f64
         .background_style(WHITE.mix(0.9))
         .border_style(BLACK)
         .draw()?;
-    Ok(())
-}
-
-/// Writes `image` as PNG to a temporary file beside `path`, then renames it over `path`.
-fn save_png_atomically(image: &image::RgbImage, path: &Path) -> Result<()> {
-    use std::io::Write;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = tempfile::Builder::new()
-        .prefix(&format!(".{name}."))
-        .suffix(".tmp")
-        // A figure is an ordinary document: readable by others, as the umask allows.
-        .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644))
-        .tempfile_in(dir)
-        .map_err(|e| Error::io(path, e))?;
-    {
-        let mut w = std::io::BufWriter::new(tmp.as_file());
-        image.write_to(&mut w, image::ImageFormat::Png).map_err(|e| Error::io(path, std::io::Error::other(e)))?;
-        w.flush().map_err(|e| Error::io(path, e))?;
-    }
-    tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    if let Ok(d) = std::fs::File::open(dir) {
-        let _ = d.sync_all(); // make the rename durable where the platform allows
-    }
     Ok(())
 }
 

@@ -9,7 +9,7 @@ use std::io::Write;
 use std::path::Path;
 
 use super::{Builder, Mesh, MeshFormat};
-use crate::error::{Error, Result};
+use crate::error::Result;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Scalar {
@@ -319,10 +319,5 @@ pub fn write_ply_bytes(mesh: &Mesh, encoding: PlyEncoding, comment: &str) -> Vec
 /// place, so a reader never sees a half-written mesh.
 pub fn write_ply_binary(mesh: &Mesh, path: &Path, comment: &str) -> Result<()> {
     let bytes = write_ply_bytes(mesh, PlyEncoding::BinaryLittleEndian, comment);
-    let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| Error::io(path, e))?;
-    tmp.write_all(&bytes).map_err(|e| Error::io(path, e))?;
-    tmp.as_file().sync_all().map_err(|e| Error::io(path, e))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    Ok(())
+    crate::atomic_file::write(path, |w| w.write_all(&bytes))
 }
