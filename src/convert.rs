@@ -208,6 +208,16 @@ fn temp_in(dir: &Path, output: &Path) -> Result<tempfile::NamedTempFile> {
         .map_err(|e| Error::io(output, e))
 }
 
+/// Where relief keeps terrains it converts on its own (the bundled terrain, `relief layouts`):
+/// `$XDG_CACHE_HOME/relief`, else `~/.cache/relief`, else `./target/relief`.
+pub fn cache_dir() -> PathBuf {
+    std::env::var_os("XDG_CACHE_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
+        .unwrap_or_else(|| PathBuf::from("target"))
+        .join("relief")
+}
+
 /// Converts the DEM at `input` into a terrain file at `output`.
 pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<ConvertReport> {
     convert_source(input, None, output, opts)

@@ -415,7 +415,7 @@ pub fn fly_headless_on(
 }
 
 /// The bundled default terrain (`data/zurich_25m_i16.tif`), converted on first use into the
-/// user's cache directory (`$XDG_CACHE_HOME/relief`, else `~/.cache/relief`, else `./target`).
+/// user's cache directory ([`crate::convert::cache_dir`]).
 pub fn bundled_terrain(progress: Progress) -> Result<PathBuf> {
     const NAME: &str = "zurich_25m_i16.tif";
     let candidates = [Path::new("data").join(NAME), Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(NAME)];
@@ -424,11 +424,7 @@ pub fn bundled_terrain(progress: Progress) -> Result<PathBuf> {
             "no FILE given and the bundled terrain data/{NAME} is not here; pass a terrain file"
         )));
     };
-    let cache = std::env::var_os("XDG_CACHE_HOME")
-        .map(PathBuf::from)
-        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
-        .unwrap_or_else(|| PathBuf::from("target"))
-        .join("relief");
+    let cache = crate::convert::cache_dir();
     let out = cache.join("zurich_25m_i16.interleaved.relief");
     if TerrainFile::open(&out).is_ok() {
         return Ok(out);

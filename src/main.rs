@@ -59,6 +59,15 @@ struct ViewArgs {
     /// Up direction "X,Y,Z".
     #[arg(long, value_name = "X,Y,Z", default_value = "0,0,1", allow_hyphen_values = true)]
     up: String,
+    #[command(flatten)]
+    image: ImageArgs,
+    #[command(flatten)]
+    refine: RefineArgs,
+}
+
+/// The image a view is refined for (shared by `refine`, `render` and `layouts`).
+#[derive(Args)]
+struct ImageArgs {
     /// Image width, pixels.
     #[arg(long, value_name = "W", default_value_t = 1920)]
     width: u32,
@@ -68,8 +77,6 @@ struct ViewArgs {
     /// Horizontal field of view, degrees.
     #[arg(long, value_name = "DEG", default_value_t = 60.0)]
     fov: f64,
-    #[command(flatten)]
-    refine: RefineArgs,
 }
 
 /// How to refine (shared by `refine`, `render` and `fly`).
@@ -124,9 +131,9 @@ impl ViewArgs {
             parse_vec3("--eye", &self.eye)?,
             parse_vec3("--look", &self.look)?,
             parse_vec3("--up", &self.up)?,
-            self.fov,
-            self.width,
-            self.height,
+            self.image.fov,
+            self.image.width,
+            self.image.height,
         )?;
         Ok((camera, options))
     }
@@ -320,15 +327,8 @@ enum Command {
         /// Layouts to compare, comma-separated.
         #[arg(long, value_name = "a,b,…", default_value = "row-major,tiled,interleaved,embedded,hz")]
         layouts: String,
-        /// Image width, pixels.
-        #[arg(long, value_name = "W", default_value_t = 1920)]
-        width: u32,
-        /// Image height, pixels.
-        #[arg(long, value_name = "H", default_value_t = 1080)]
-        height: u32,
-        /// Horizontal field of view, degrees.
-        #[arg(long, value_name = "DEG", default_value_t = 60.0)]
-        fov: f64,
+        #[command(flatten)]
+        image: ImageArgs,
         /// Also count real OS page faults (cold mapped runs).
         #[arg(long)]
         os: bool,
@@ -486,6 +486,13 @@ fn parse_bytes(flag: &str, s: &str) -> anyhow::Result<u64> {
         Ok(v) if v.is_finite() && v >= 0.0 && v * (mult as f64) < u64::MAX as f64 => Ok((v * mult as f64) as u64),
         _ => bail!("{flag}: expected bytes such as 4096, 64K or 1G, got '{s}'"),
     }
+}
+
+/// The camera of every frame of a flight path (errors name the file and the frame).
+fn path_cameras(flight: &FlightPath, path: &std::path::Path, fov: f64, w: u32, h: u32) -> anyhow::Result<Vec<Camera>> {
+    (0..flight.frames.len())
+        .map(|k| flight.camera(k, fov, w, h).map_err(|e| anyhow::anyhow!("{}: frame {k}: {e}", path.display())))
+        .collect()
 }
 
 /// `--memory`: bytes, or "1/N" of `data_bytes`.
@@ -702,15 +709,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 return Ok(ExitCode::SUCCESS);
             };
             let flight = FlightPath::load(&path)?;
-            let cameras = flight
-                .frames
-                .iter()
-                .enumerate()
-                .map(|(k, f)| {
-                    Camera::new(DVec3::from(f.eye), DVec3::from(f.look), DVec3::Z, fov, width, height)
-                        .map_err(|e| anyhow::anyhow!("{}: frame {k}: {e}", path.display()))
-                })
-                .collect::<anyhow::Result<Vec<_>>>()?;
+            let cameras = path_cameras(&flight, &path, fov, width, height)?;
             let options = HeadlessOptions {
                 width_px: width,
                 height_px: height,
@@ -783,9 +782,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             page_size,
             tolerance,
             layouts,
-            width,
-            height,
-            fov,
+            image: ImageArgs { width, height, fov },
             os,
             os_cap,
             cache_dir,
@@ -819,25 +816,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             if !input.exists() {
                 bail!("{}: no such file", input.display());
             }
-            let cache_dir = cache_dir.unwrap_or_else(|| {
-                std::env::var_os("XDG_CACHE_HOME")
-                    .map(PathBuf::from)
-                    .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
-                    .unwrap_or_else(|| PathBuf::from("target"))
-                    .join("relief/layouts")
-            });
+            let cache_dir = cache_dir.unwrap_or_else(|| relief::convert::cache_dir().join("layouts"));
             let first = terrain_in_layout(&input, kinds[0], &cache_dir, progress(quiet))?;
             let memory_bytes = {
                 let t = TerrainFile::open(&first)?;
                 parse_memory(&memory, t.grid().vertices() * relief::format::RECORD_BYTES as u64)?
             };
-            let cameras = (0..flight.frames.len())
-                .map(|k| {
-                    flight
-                        .camera(k, fov, width, height)
-                        .map_err(|e| anyhow::anyhow!("{}: frame {k}: {e}", path.display()))
-                })
-                .collect::<anyhow::Result<Vec<_>>>()?;
+            let cameras = path_cameras(&flight, &path, fov, width, height)?;
             let options = LayoutsOptions {
                 memory_bytes,
                 page_bytes,
