@@ -12,7 +12,7 @@
 //!   meta-node backend; it will be another implementation of [`PageObserver`]'s caller side, a
 //!   `RecordSource` that fetches pages it misses.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 use std::sync::Mutex;
 
@@ -72,7 +72,7 @@ pub struct LruCache {
     /// Most and least recently used slots.
     head: u32,
     tail: u32,
-    seen: HashMap<u64, ()>,
+    seen: HashSet<u64>,
     stats: CacheStats,
 }
 
@@ -100,7 +100,7 @@ impl LruCache {
             next: Vec::new(),
             head: NIL,
             tail: NIL,
-            seen: HashMap::new(),
+            seen: HashSet::new(),
             stats: CacheStats::default(),
         }
     }
@@ -156,7 +156,7 @@ impl LruCache {
             return true;
         }
         self.stats.misses += 1;
-        if self.seen.insert(page, ()).is_none() {
+        if self.seen.insert(page) {
             self.stats.distinct_pages += 1;
         }
         let s = if self.page.len() < self.capacity {
