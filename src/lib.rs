@@ -35,4 +35,5 @@ pub mod progress;
 pub mod refine;
 pub mod refine_report;
 pub mod render;
+pub mod vdtree;
 pub mod window;
