@@ -36,8 +36,12 @@ pub trait MetaStore {
     fn with_block<R>(&mut self, meta: u32, f: impl FnOnce(BlockView<'_>) -> R) -> Result<Option<R>>;
     /// Makes the block resident before navigation starts (root meta-nodes), waiting if needed.
     fn load_now(&mut self, meta: u32) -> Result<()>;
-    /// Usage count: active nodes in the block.
-    fn use_block(&mut self, _meta: u32, _delta: i32) {}
+    /// Usage count: active nodes in the block. The navigator raises it *before* reading a block
+    /// it will activate nodes from, so the block cannot be recycled in between; `false` means
+    /// the block is not in memory (nothing changed).
+    fn use_block(&mut self, _meta: u32, _delta: i32) -> bool {
+        true
+    }
     /// Reference count: active parent or child meta-nodes (speculative prefetch).
     fn reference(&mut self, _meta: u32, _delta: i32) {}
     /// An urgent prefetch for a wanted split (`up = false`) or collapse (`up = true`).
@@ -165,6 +169,10 @@ impl<S: MetaStore> Navigator<S> {
             worklist: Vec::new(),
         };
         for m in 0..roots {
+            let root_count = nav.store.with_block(m, |view| view.nodes.iter().filter(|v| v.is_root()).count())?.unwrap_or(0);
+            for _ in 0..root_count {
+                nav.store.use_block(m, 1);
+            }
             let found = nav.store.with_block(m, |view| {
                 view.nodes
                     .iter()
@@ -302,27 +310,28 @@ impl<S: MetaStore> Navigator<S> {
                 }
             }
         }
+        // Pin the children's blocks first (their usage counts), then read them.
+        for k in 0..2 {
+            if !self.store.use_block(pnode.child_meta[k], 1) {
+                if k == 1 {
+                    self.store.use_block(pnode.child_meta[0], -1);
+                }
+                self.store.request_urgent(pnode.child_meta[k], false);
+                return Ok(Outcome::Miss);
+            }
+        }
         let mut children = [(MnNode::default(), [0f32; 3]); 2];
         for k in 0..2 {
             let (m, local) = (pnode.child_meta[k], pnode.child_local[k] as usize);
             let got = self.store.with_block(m, |view| view.nodes.get(local).map(|c| (*c, view.position(c))))?;
             match got {
                 Some(Some(c)) => children[k] = c,
-                Some(None) => return Err(Error::InvalidArgument(format!("meta-node {m}: child {local} of node {} missing", pnode.id))),
-                None => {
-                    self.store.request_urgent(m, false);
-                    return Ok(Outcome::Miss);
-                }
+                _ => return Err(Error::InvalidArgument(format!("meta-node {m}: child {local} of node {} missing", pnode.id))),
             }
         }
         let created = self.store.with_block(pmeta, |view| view.nodes.get(plocal).map(|v| view.triangles_of(v).to_vec()))?;
-        let created = match created {
-            Some(Some(c)) => c,
-            Some(None) => return Err(Error::InvalidArgument(format!("meta-node {pmeta}: node {plocal} missing"))),
-            None => {
-                self.store.request_urgent(pmeta, false);
-                return Ok(Outcome::Miss);
-            }
+        let Some(Some(created)) = created else {
+            return Err(Error::InvalidArgument(format!("meta-node {pmeta} of active node {} is not in memory", pnode.id)));
         };
         let [(a, a_pos), (b, b_pos)] = children;
         if a.dfs_lo != pnode.dfs_lo || b.dfs_lo != pnode.dfs_lo + a.leaves || a.leaves + b.leaves != pnode.leaves {
@@ -377,14 +386,13 @@ impl<S: MetaStore> Navigator<S> {
             }
         }
         let (pm, pl) = (a.node.parent_meta, a.node.parent_local as usize);
+        if !self.store.use_block(pm, 1) {
+            self.store.request_urgent(pm, true);
+            return Ok(Outcome::Miss);
+        }
         let got = self.store.with_block(pm, |view| view.nodes.get(pl).map(|p| (*p, view.position(p))))?;
-        let (p, p_pos) = match got {
-            Some(Some(p)) => p,
-            Some(None) => return Err(Error::InvalidArgument(format!("meta-node {pm}: parent {pl} missing"))),
-            None => {
-                self.store.request_urgent(pm, true);
-                return Ok(Outcome::Miss);
-            }
+        let Some(Some((p, p_pos))) = got else {
+            return Err(Error::InvalidArgument(format!("meta-node {pm}: parent {pl} missing")));
         };
         if p.id != parent_id || p.dfs_lo != first {
             return Err(Error::InvalidArgument(format!("node {parent_id}: parent record does not match its children")));
@@ -413,13 +421,12 @@ impl<S: MetaStore> Navigator<S> {
         Ok(Outcome::Done)
     }
 
+    /// Makes a node active; its block's usage count was already raised by the caller.
     fn activate(&mut self, node: MnNode, meta: u32, local: u16, position: [f32; 3], adj: Vec<u32>) {
         self.active.insert(node.dfs_lo, Active { node, meta, local, position, adj });
         let usage = self.usage.entry(meta).or_insert(0);
         *usage += 1;
-        let first = *usage == 1;
-        self.store.use_block(meta, 1);
-        if first {
+        if *usage == 1 {
             self.reference_around(meta, 1);
         }
     }
