@@ -699,3 +699,141 @@ fn get_u64(b: &[u8], at: usize) -> u64 {
     a.copy_from_slice(&b[at..at + 8]);
     u64::from_le_bytes(a)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A complete binary tree over `leaves` (a power of two) leaves on a line, with one triangle
+    /// per internal node (its first leaves) and one base triangle.
+    fn line_forest(leaves: u32) -> (Vec<VdtNode>, Vec<VdtTriangle>) {
+        let mut nodes: Vec<VdtNode> = (0..leaves)
+            .map(|i| VdtNode { position: [i as f32, 0.0, 0.0], children: [NONE; 2], parent: NONE, leaves: 1, ..Default::default() })
+            .collect();
+        let mut tris = Vec::new();
+        let mut level: Vec<u32> = (0..leaves).collect();
+        while level.len() > 1 {
+            let mut next = Vec::new();
+            for pair in level.chunks(2) {
+                let (a, b) = (pair[0], pair[1]);
+                let p = nodes.len() as u32;
+                let (na, nb) = (nodes[a as usize], nodes[b as usize]);
+                nodes.push(VdtNode {
+                    position: na.position,
+                    switch: 1.0 + na.switch.max(nb.switch),
+                    radius: na.radius.max(nb.position[0] - na.position[0] + nb.radius),
+                    children: [a, b],
+                    parent: NONE,
+                    leaves: na.leaves + nb.leaves,
+                    tri_start: tris.len() as u32,
+                    tri_count: 1,
+                    reserved: 0,
+                });
+                nodes[a as usize].parent = p;
+                nodes[b as usize].parent = p;
+                tris.push(VdtTriangle { corners: [0, 1, 2] });
+                next.push(p);
+            }
+            level = next;
+        }
+        tris.push(VdtTriangle { corners: [0, 1, leaves - 1] });
+        (nodes, tris)
+    }
+
+    fn forest<'a>(nodes: &'a [VdtNode], tris: &'a [VdtTriangle], leaves: u32) -> Forest<'a> {
+        let bounds = Bounds { min: [0.0; 3], max: [leaves as f64, 0.0, 0.0] };
+        Forest { nodes, triangles: tris, base_triangles: 1, leaves, metric: 0, bounds }
+    }
+
+    #[test]
+    fn blocks_hold_every_node_once_within_page_and_levels() {
+        let (nodes, tris) = line_forest(256);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.rmn");
+        let options = BlockingOptions { levels_per_node: 3, page_bytes: 1024 };
+        let report = write_metanode_file(&forest(&nodes, &tris, 256), options, &path).unwrap();
+        let f = MetaNodeFile::open(&path).unwrap();
+        assert_eq!(f.header().metanodes, report.metanodes);
+        assert_eq!(f.header().root_metanodes, 1);
+        let mut seen = vec![0u32; nodes.len()];
+        let metas = f.header().metanodes as u32;
+        for m in 0..metas {
+            let view = BlockView::parse(f.mapped_block(m), metas).unwrap();
+            assert!(f.mapped_block(m).len() <= 1024, "block {m} exceeds the page");
+            let e = f.mnt()[m as usize];
+            for (local, v) in view.nodes.iter().enumerate() {
+                seen[v.id as usize] += 1;
+                let orig = &nodes[v.id as usize];
+                assert_eq!(view.position(v), orig.position);
+                assert_eq!(v.leaves, orig.leaves);
+                if v.parent_id != NONE {
+                    // The parent is in this block or in the parent meta-node.
+                    assert!(v.parent_meta == m || v.parent_meta == e.parent, "node {} parent block", v.id);
+                    let pv = BlockView::parse(f.mapped_block(v.parent_meta), metas).unwrap();
+                    let p = &pv.nodes[v.parent_local as usize];
+                    assert_eq!(p.id, orig.parent);
+                    let k = if p.child_meta[0] == m && p.child_local[0] as usize == local { 0 } else { 1 };
+                    assert_eq!((p.child_meta[k], p.child_local[k] as usize), (m, local));
+                    assert_eq!(v.parent_switch, p.switch);
+                }
+                if !v.is_leaf() {
+                    for k in 0..2 {
+                        let c = v.child_meta[k];
+                        assert!(c == m || (e.first_child..e.first_child + e.child_count).contains(&c));
+                    }
+                    assert_eq!(view.triangles_of(v).len(), 1);
+                }
+            }
+            // At most L levels per block: no chain of three in-block parents above a node.
+            for v in view.nodes {
+                let mut depth = 0;
+                let mut cur = *v;
+                while cur.parent_id != NONE && cur.parent_meta == m {
+                    cur = view.nodes[cur.parent_local as usize];
+                    depth += 1;
+                }
+                assert!(depth < 3, "block {m} has more than L = 3 levels");
+            }
+        }
+        assert!(seen.iter().all(|&c| c == 1), "every node in exactly one block");
+        assert_eq!(f.base_triangles(), &[[0, 1, 255]]);
+        assert!(report.fill_mean > 0.3 && report.fill_mean <= 1.0, "fill {}", report.fill_mean);
+    }
+
+    #[test]
+    fn damaged_files_are_one_line_errors() {
+        let (nodes, tris) = line_forest(64);
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.rmn");
+        write_metanode_file(&forest(&nodes, &tris, 64), BlockingOptions::default(), &path).unwrap();
+        let good = std::fs::read(&path).unwrap();
+        let bad = dir.path().join("bad.rmn");
+        let open = |bytes: &[u8]| {
+            std::fs::write(&bad, bytes).unwrap();
+            MetaNodeFile::open(&bad).err().map(|e| e.to_string()).unwrap_or_default()
+        };
+        let mut b = good.clone();
+        b[0] = b'X';
+        assert!(open(&b).contains("magic"), "{}", open(&b));
+        let mut b = good.clone();
+        b[60] ^= 1;
+        assert!(open(&b).contains("checksum"), "{}", open(&b));
+        assert!(open(&good[..good.len() - 100]).contains("truncated"), "{}", open(&good[..good.len() - 100]));
+        assert!(open(&good[..100]).contains("truncated"));
+        let e = open(&good[..100]);
+        assert!(e.starts_with(&bad.display().to_string()) && !e.contains('\n'), "{e}");
+        // A block whose counts are wrong is caught when parsed.
+        let f = MetaNodeFile::open(&path).unwrap();
+        let at = f.mnt()[0].offset as usize;
+        let mut b = good.clone();
+        b[at..at + 4].copy_from_slice(&100_000u32.to_le_bytes());
+        std::fs::write(&bad, &b).unwrap();
+        let g = MetaNodeFile::open(&bad).unwrap();
+        assert!(BlockView::parse(g.mapped_block(0), 1).is_err());
+        // Options.
+        let e = write_metanode_file(&forest(&nodes, &tris, 64), BlockingOptions { levels_per_node: 0, page_bytes: 4096 }, &path);
+        assert!(e.unwrap_err().to_string().contains("levels"));
+        let e = write_metanode_file(&forest(&nodes, &tris, 64), BlockingOptions { levels_per_node: 4, page_bytes: 3000 }, &path);
+        assert!(e.unwrap_err().to_string().contains("power of two"));
+    }
+}

@@ -147,15 +147,10 @@ pub struct Navigator<S: MetaStore> {
 
 impl<S: MetaStore> Navigator<S> {
     /// Starts at the coarsest level: every root active, the base triangles over them.
-    pub fn new(file: &MetaNodeFile, mut store: S, options: NavOptions) -> Result<Navigator<S>> {
+    pub fn new(file: &MetaNodeFile, store: S, options: NavOptions) -> Result<Navigator<S>> {
         let roots = file.header().root_metanodes as u32;
         let mut nav = Navigator {
-            store: {
-                for m in 0..roots {
-                    store.load_now(m)?;
-                }
-                store
-            },
+            store,
             mnt: file.mnt().to_vec(),
             active: BTreeMap::new(),
             usage: HashMap::new(),
@@ -169,6 +164,8 @@ impl<S: MetaStore> Navigator<S> {
             worklist: Vec::new(),
         };
         for m in 0..roots {
+            // Load and pin each root meta-node before the next load can recycle a holder.
+            nav.store.load_now(m)?;
             let root_count = nav.store.with_block(m, |view| view.nodes.iter().filter(|v| v.is_root()).count())?.unwrap_or(0);
             for _ in 0..root_count {
                 nav.store.use_block(m, 1);
