@@ -30,6 +30,7 @@ pub mod metric;
 pub mod minimal;
 pub mod pager;
 pub mod plot;
+pub mod pool;
 pub mod preprocess;
 pub mod progress;
 pub mod refine;
