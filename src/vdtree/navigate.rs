@@ -21,6 +21,8 @@
 //!   not in memory is abandoned for this frame and counted, and an urgent prefetch is sent.
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 
 use glam::DVec3;
 use serde::Serialize;
@@ -29,12 +31,15 @@ use super::metanode::{BlockView, MetaNodeFile, MnNode, MntEntry};
 use super::NONE;
 use crate::camera::{Camera, PLANES};
 use crate::error::{Error, Result};
+use crate::pool::{holders_for, BlockLoader, BufferPool, Direction};
 
 /// Where meta-nodes come from. `with_block` gives `None` when the block is not in memory (a
 /// miss for the caller); the counting calls are the buffer pool's protocol and no-ops elsewhere.
 pub trait MetaStore {
     fn with_block<R>(&mut self, meta: u32, f: impl FnOnce(BlockView<'_>) -> R) -> Result<Option<R>>;
-    /// Makes the block resident before navigation starts (root meta-nodes), waiting if needed.
+    /// Makes the block resident before navigation starts (root meta-nodes), waiting if needed,
+    /// and raises its usage count by one (the caller drops that hold with `use_block(m, -1)`
+    /// once it has pinned what it uses).
     fn load_now(&mut self, meta: u32) -> Result<()>;
     /// Usage count: active nodes in the block. The navigator raises it *before* reading a block
     /// it will activate nodes from, so the block cannot be recycled in between; `false` means
@@ -170,6 +175,7 @@ impl<S: MetaStore> Navigator<S> {
             for _ in 0..root_count {
                 nav.store.use_block(m, 1);
             }
+            nav.store.use_block(m, -1); // load_now's hold
             let found = nav.store.with_block(m, |view| {
                 view.nodes
                     .iter()
@@ -333,6 +339,22 @@ impl<S: MetaStore> Navigator<S> {
         let [(a, a_pos), (b, b_pos)] = children;
         if a.dfs_lo != pnode.dfs_lo || b.dfs_lo != pnode.dfs_lo + a.leaves || a.leaves + b.leaves != pnode.leaves {
             return Err(Error::InvalidArgument(format!("node {}: children do not split its leaves", pnode.id)));
+        }
+        // The triangles the split creates bring a third corner that need not be p's neighbour
+        // yet: it must also have coexisted with a and b during the construction.
+        let youngest_child = a.id.max(b.id);
+        for leaves in &created {
+            for &d in leaves {
+                if pnode.covers(d) {
+                    continue;
+                }
+                let Some((_, x)) = self.active.range(..=d).next_back() else { continue };
+                if x.node.id > pnode.id || x.node.parent_id <= youngest_child {
+                    self.store.use_block(pnode.child_meta[0], -1);
+                    self.store.use_block(pnode.child_meta[1], -1);
+                    return Ok(Outcome::Blocked);
+                }
+            }
         }
         let p = self.deactivate(key);
         let key_b = key + a.leaves;
@@ -546,6 +568,19 @@ impl<S: MetaStore> Navigator<S> {
                 }
             }
         }
+        // The implicit dependencies' invariant: adjacent active nodes coexisted during the
+        // construction (each is older than the other's parent).
+        for (s, (t, &l)) in self.tris.iter().zip(&self.live).enumerate() {
+            if !l {
+                continue;
+            }
+            for k in 0..3 {
+                let (u, v) = (&self.active[&t.corners[k]].node, &self.active[&t.corners[(k + 1) % 3]].node);
+                if u.id >= v.parent_id || v.id >= u.parent_id {
+                    return Err(format!("triangle {s}: nodes {} and {} never coexisted", u.id, v.id));
+                }
+            }
+        }
         let mut usage: HashMap<u32, u32> = HashMap::new();
         for a in self.active.values() {
             *usage.entry(a.meta).or_default() += 1;
@@ -591,6 +626,93 @@ fn flipped(before: &[[f32; 3]; 3], after: &[[f32; 3]; 3]) -> bool {
     };
     let (n0, n1) = (normal(before), normal(after));
     n0.length_squared() > 0.0 && n1.length_squared() > 0.0 && n0.dot(n1) <= 0.0
+}
+
+/// Loads meta-node blocks with `pread` for the buffer pool.
+pub struct MetaLoader {
+    file: Arc<MetaNodeFile>,
+    pages_read: AtomicU64,
+}
+
+impl BlockLoader for MetaLoader {
+    type Block = Vec<u32>;
+
+    fn load(&self, id: u32, recycled: Option<Vec<u32>>) -> Result<Vec<u32>> {
+        let mut buf = recycled.unwrap_or_default();
+        self.file.read_block(id, &mut buf)?;
+        // Validate once, when read, so a corrupt block is an error here rather than later.
+        parse_block(&self.file, id, bytemuck::cast_slice(&buf))?;
+        self.pages_read.fetch_add(self.file.block_pages(id), Ordering::Relaxed);
+        Ok(buf)
+    }
+}
+
+/// The "Ext" store: the buffer pool of K place holders with its I/O thread (the paper's
+/// external-memory support).
+pub struct ExtStore {
+    pool: BufferPool<MetaLoader>,
+}
+
+impl ExtStore {
+    /// A pool of as many holders as `memory_bytes` allows for this file's largest block.
+    pub fn new(file: Arc<MetaNodeFile>, memory_bytes: u64) -> Result<ExtStore> {
+        let holders = holders_for(memory_bytes, file.header().holder_bytes.max(1))?;
+        ExtStore::with_holders(file, holders)
+    }
+
+    pub fn with_holders(file: Arc<MetaNodeFile>, holders: usize) -> Result<ExtStore> {
+        let loader = MetaLoader { file, pages_read: AtomicU64::new(0) };
+        Ok(ExtStore { pool: BufferPool::new(loader, holders)? })
+    }
+
+    pub fn pool(&self) -> &BufferPool<MetaLoader> {
+        &self.pool
+    }
+}
+
+impl MetaStore for ExtStore {
+    fn with_block<R>(&mut self, meta: u32, f: impl FnOnce(BlockView<'_>) -> R) -> Result<Option<R>> {
+        let Some(block) = self.pool.get(meta) else { return Ok(None) };
+        let view = parse_block(&self.pool.loader().file, meta, bytemuck::cast_slice(&block))?;
+        Ok(Some(f(view)))
+    }
+
+    fn load_now(&mut self, meta: u32) -> Result<()> {
+        // A reference keeps the block off the free list once loaded, so the prefetches queued
+        // behind the urgent load cannot take its holder before the usage count pins it.
+        self.pool.reference(meta, 1);
+        self.pool.request_urgent(meta, Direction::Up);
+        self.pool.drain()?;
+        let pinned = self.pool.use_block(meta, 1);
+        self.pool.reference(meta, -1);
+        if !pinned {
+            return Err(Error::InvalidArgument(format!(
+                "the buffer pool's {} place holders cannot hold the root meta-nodes; give it more memory",
+                self.pool.holders()
+            )));
+        }
+        Ok(())
+    }
+
+    fn use_block(&mut self, meta: u32, delta: i32) -> bool {
+        self.pool.use_block(meta, delta)
+    }
+
+    fn reference(&mut self, meta: u32, delta: i32) {
+        self.pool.reference(meta, delta);
+    }
+
+    fn request_urgent(&mut self, meta: u32, up: bool) {
+        self.pool.request_urgent(meta, if up { Direction::Up } else { Direction::Down });
+    }
+
+    fn pages_read(&self) -> u64 {
+        self.pool.loader().pages_read.load(Ordering::Relaxed)
+    }
+
+    fn second_chance_hits(&self) -> u64 {
+        self.pool.stats().second_chance_hits
+    }
 }
 
 #[cfg(test)]
@@ -811,5 +933,62 @@ mod tests {
         assert_eq!(nav.foldovers(), 0);
         assert!(splits > 1000 && collapses > 1000, "{splits} splits, {collapses} collapses");
         eprintln!("{splits} splits, {collapses} collapses, {blocked} blocked");
+    }
+
+    #[test]
+    fn ext_matches_virt_with_room_and_stays_consistent_with_a_tiny_pool() {
+        let side = 14;
+        let (nodes, tris, base, _) = naive_forest(side);
+        let (_d, f, _, _) = file(side, BlockingOptions { levels_per_node: 2, page_bytes: 512 });
+        let f = Arc::new(f);
+        let metas = f.header().metanodes as usize;
+        let views: Vec<(Camera, f64)> = {
+            let mut seed = 99u64;
+            let mut rnd = || {
+                seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                (seed >> 11) as f64 / (1u64 << 53) as f64
+            };
+            (0..150)
+                .map(|_| {
+                    let eye = [rnd() * 20.0 - 3.0, rnd() * 20.0 - 3.0, 0.5 + rnd() * 6.0];
+                    let look = [rnd() * 13.0, rnd() * 13.0, 0.0];
+                    (camera(eye, look), [0.5, 2.0, 8.0][(rnd() * 3.0) as usize])
+                })
+                .collect()
+        };
+        // Room for every block, and the I/O thread drained before each frame: no misses, the same
+        // cuts as the map.
+        let mut virt = Navigator::new(&f, VirtStore::new(&f), NavOptions::default()).unwrap();
+        let mut ext = Navigator::new(&f, ExtStore::with_holders(f.clone(), metas + 4).unwrap(), NavOptions::default()).unwrap();
+        for (cam, tol) in &views {
+            // Converge: a frame that misses retries once its urgent loads are in.
+            virt.update(cam, *tol).unwrap();
+            for _ in 0..64 {
+                ext.store().pool().drain().unwrap();
+                if ext.update(cam, *tol).unwrap().misses == 0 {
+                    break;
+                }
+            }
+            assert_eq!(ext.active_ids(), virt.active_ids());
+        }
+        // A tiny pool: misses happen, the bookkeeping stays right, nothing in use is evicted.
+        let mut tiny = Navigator::new(&f, ExtStore::with_holders(f.clone(), 8).unwrap(), NavOptions { check_foldover: true }).unwrap();
+        let mut misses = 0;
+        for (k, (cam, tol)) in views.iter().enumerate() {
+            let s = tiny.update(cam, *tol).unwrap();
+            misses += s.misses;
+            tiny.check().unwrap();
+            tiny.store().pool().check_invariants().unwrap();
+            let mut got = tiny.triangle_leaves();
+            got.sort();
+            assert_eq!(got, expected(&nodes, &tris, base, &tiny.active_ids()));
+            if k % 3 == 0 {
+                tiny.store().pool().drain().unwrap();
+            }
+        }
+        assert!(misses > 0, "8 holders for {metas} meta-nodes must miss");
+        assert_eq!(tiny.foldovers(), 0);
+        let stats = tiny.store().pool().stats();
+        assert!(stats.disk_reads > 8 && stats.second_chance_hits > 0, "{stats:?}");
     }
 }
