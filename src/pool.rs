@@ -170,7 +170,7 @@ struct Holder<B> {
     in_free: bool,
 }
 
-#[derive(Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Debug)]
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
 enum Kind {
     Speculative,
     Urgent,
@@ -331,7 +331,8 @@ impl<B> Table<B> {
         }
         self.index.insert(id, h);
         if refs == 0 {
-            // Loaded urgently but no longer referenced: keep it hashed, reusable last.
+            // Unreferenced (an urgent load, or references dropped during the read): hashed, but
+            // on the free list, reused last.
             self.push_free(h);
         }
         Ok(old)
