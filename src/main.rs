@@ -587,6 +587,13 @@ enum PathCommand {
     },
 }
 
+/// What `relief path` flies over or around.
+enum PathSubject {
+    Terrain(TerrainFile),
+    /// A mesh's bounding box and up axis.
+    Mesh(relief::mesh::Bounds, UpAxis),
+}
+
 /// What every `relief path` generator takes.
 #[derive(Args)]
 struct PathArgs {
@@ -1070,45 +1077,41 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             };
             let (file, out, json) = (&common.file, &common.out, common.json);
             // A terrain file by its magic; anything else must be a mesh read_mesh reads.
-            let terrain = if is_terrain_file(file) { Some(TerrainFile::open(file)?) } else { None };
-            let mesh_box = match &terrain {
-                Some(_) => None,
-                None => {
-                    let mesh = relief::mesh::read_mesh(file)?;
-                    let bounds = mesh.bounds().ok_or_else(|| anyhow::anyhow!("{}: no vertices", file.display()))?;
-                    Some((bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent()))))
+            let subject = if is_terrain_file(file) {
+                if common.up.is_some_and(|u| u != UpAxis::Z) {
+                    bail!("--up: a terrain's up axis is z");
                 }
+                PathSubject::Terrain(TerrainFile::open(file)?)
+            } else {
+                let mesh = relief::mesh::read_mesh(file)?;
+                let bounds = mesh.bounds().ok_or_else(|| anyhow::anyhow!("{}: no vertices", file.display()))?;
+                PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
             };
-            if terrain.is_some() && common.up.is_some_and(|u| u != UpAxis::Z) {
-                bail!("--up: a terrain's up axis is z");
-            }
-            let path = match (&kind, &terrain, &mesh_box) {
-                (PathCommand::Flyover { common, clearance }, Some(t), _) => {
-                    flyover(t, &FlyoverOptions { frames: common.frames, clearance_m: *clearance })?
+            let path = match &kind {
+                PathCommand::Flyover { common, clearance } => {
+                    let opts = FlyoverOptions { frames: common.frames, clearance_m: *clearance };
+                    match &subject {
+                        PathSubject::Terrain(t) => flyover(t, &opts)?,
+                        PathSubject::Mesh(b, up) => flyover_box(b, *up, &opts)?,
+                    }
                 }
-                (PathCommand::Flyover { common, clearance }, None, Some((b, up))) => {
-                    flyover_box(b, *up, &FlyoverOptions { frames: common.frames, clearance_m: *clearance })?
-                }
-                (PathCommand::Orbit { common, radius, altitude }, Some(t), _) => {
-                    orbit(t, &OrbitOptions { frames: common.frames, radius_m: *radius, altitude_m: *altitude })?
-                }
-                (PathCommand::Orbit { common, radius, altitude }, None, Some((b, up))) => {
+                PathCommand::Orbit { common, radius, altitude } => {
                     let opts = OrbitOptions { frames: common.frames, radius_m: *radius, altitude_m: *altitude };
-                    orbit_box(b, *up, &opts)?
+                    match &subject {
+                        PathSubject::Terrain(t) => orbit(t, &opts)?,
+                        PathSubject::Mesh(b, up) => orbit_box(b, *up, &opts)?,
+                    }
                 }
-                (_, None, None) => unreachable!("a terrain or a mesh was read above"),
             };
             path.save(out)?;
             // Terrains are in metres; a mesh in its file's units, shown to about 1/1000 of its size.
-            let (s, clearance_what, unit, decimals) = match (&terrain, &mesh_box) {
-                (Some(t), _) => (path.summary(t), "min clearance above terrain", " m", 1),
-                (None, Some((b, _))) => {
+            let (s, clearance_what, unit, decimals, up) = match &subject {
+                PathSubject::Terrain(t) => (path.summary(t), "min clearance above terrain", " m", 1, UpAxis::Z),
+                PathSubject::Mesh(b, up) => {
                     let decimals = (3.0 - b.diagonal().log10().floor()).clamp(0.0, 9.0) as usize;
-                    (path.summary_box(b), "min distance to the mesh's box", "", decimals)
+                    (path.summary_box(b), "min distance to the mesh's box", "", decimals, *up)
                 }
-                (None, None) => unreachable!("a terrain or a mesh was read above"),
             };
-            let up = mesh_box.map_or(UpAxis::Z, |(_, up)| up);
             if json {
                 let j = serde_json::json!({
                     "frames": s.frames,

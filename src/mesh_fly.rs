@@ -77,10 +77,20 @@ pub struct StaticMesh {
 }
 
 impl StaticMesh {
-    /// All triangles of `mesh`, as f32 world positions.
+    /// All triangles of `mesh`, as f32 world positions (an index out of range is an error).
     pub fn new(mesh: &Mesh) -> Result<StaticMesh> {
-        let triangles =
-            mesh.triangles.iter().flat_map(|t| t.map(|i| mesh.positions[i as usize].map(|c| c as f32))).collect();
+        let mut triangles = Vec::with_capacity(3 * mesh.triangles.len());
+        for (k, t) in mesh.triangles.iter().enumerate() {
+            for &i in t {
+                let p = mesh.positions.get(i as usize).ok_or_else(|| {
+                    Error::InvalidArgument(format!(
+                        "triangle {k}: vertex index {i} out of range ({} vertices)",
+                        mesh.positions.len()
+                    ))
+                })?;
+                triangles.push(p.map(|c| c as f32));
+            }
+        }
         StaticMesh::from_triangles(triangles)
     }
 
