@@ -26,6 +26,7 @@ pub mod inspect;
 pub mod mem;
 pub mod mesh;
 pub mod mesh_check;
+pub mod mesh_fly;
 pub mod metric;
 pub mod minimal;
 pub mod pager;
