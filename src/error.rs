@@ -38,6 +38,15 @@ pub enum Error {
     /// A mesh file (`mesh::read_mesh`) that could not be parsed or holds unusable data.
     #[error("{}: {problem}", path.display())]
     BadMesh { path: PathBuf, problem: String },
+    /// A VDT file (`vdtree::vdt`) that is not one, or whose content is inconsistent.
+    #[error("{}: {problem}", path.display())]
+    BadVdt { path: PathBuf, problem: String },
+    /// A memory budget too small for the step that needs it (`vdtree::build`).
+    #[error("memory budget of {budget_bytes} bytes is too small: {problem}")]
+    MemoryBudget { budget_bytes: u64, problem: String },
+    /// Scratch storage (the redb database of `vdtree::build`) failed.
+    #[error("{}: scratch database: {problem}", path.display())]
+    Scratch { path: PathBuf, problem: String },
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
     /// No usable GPU, or the GPU refused a request (creation, limits, readback).

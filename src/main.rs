@@ -363,7 +363,8 @@ enum Command {
         #[command(subcommand)]
         kind: PathCommand,
     },
-    /// Triangle meshes for the mesh backends: inspect or show one, or export a terrain as one.
+    /// Triangle meshes for the mesh backends: inspect or show one, build its meta-node trees and
+    /// fly over them, or export a terrain as one.
     Mesh {
         #[command(subcommand)]
         kind: MeshCommand,
@@ -392,6 +393,38 @@ enum MeshCommand {
         /// Print the report as JSON.
         #[arg(long)]
         json: bool,
+    },
+    /// Build the view-dependence forest of a mesh out of core (El-Sana & Chiang's spanned
+    /// sub-mesh simplification): shortest-first edge collapses in exactly the order of an
+    /// in-memory build, within a memory budget, written as a VDT file (replaced atomically).
+    /// Scratch files go beside OUTPUT and are removed afterwards.
+    Build {
+        /// Mesh file (OFF, PLY, OBJ; optionally gzip'd).
+        input: PathBuf,
+        /// VDT file to write.
+        output: PathBuf,
+        /// Memory budget of the build phase: BYTES with an optional binary K/M/G suffix (64M,
+        /// 1.5G), or a fraction "A/B" of the mesh's size in memory (24 bytes a vertex plus 12 a
+        /// triangle). It covers the redb page cache (1/8 of it), the scratch buffers and the
+        /// loaded sub-meshes; reading the input beforehand holds the whole mesh regardless.
+        #[arg(long, value_name = "BYTES")]
+        memory: String,
+        /// Collapse metric: edge length, or the square root of the Garland–Heckbert quadric
+        /// error (both in mesh units).
+        #[arg(long, value_enum, default_value = "length")]
+        metric: VdtMetricArg,
+        /// Levels of the binary forest per meta-node (for the meta-node step).
+        #[arg(long, value_name = "L", default_value_t = 4)]
+        levels_per_node: u32,
+        /// Disk page size of the meta-node file, BYTES (K/M/G suffixes allowed).
+        #[arg(long, value_name = "BYTES", default_value = "4096")]
+        page_size: String,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
     },
     /// Write a terrain's valid window as a regular triangle mesh in world metres (x = gx·spacing,
     /// y = gy·spacing, z = height; two triangles per cell), binary little-endian PLY, replaced
@@ -542,6 +575,22 @@ fn show_mesh(
     Ok(ExitCode::SUCCESS)
 }
 
+/// `--metric` of `relief mesh build`.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum VdtMetricArg {
+    Length,
+    Quadric,
+}
+
+impl From<VdtMetricArg> for relief::vdtree::VdtMetric {
+    fn from(m: VdtMetricArg) -> Self {
+        match m {
+            VdtMetricArg::Length => relief::vdtree::VdtMetric::Length,
+            VdtMetricArg::Quadric => relief::vdtree::VdtMetric::Quadric,
+        }
+    }
+}
+
 /// `relief mesh info` as printed with `--json`.
 #[derive(serde::Serialize)]
 struct MeshInfo {
@@ -683,14 +732,14 @@ fn path_cameras(flight: &FlightPath, path: &std::path::Path, fov: f64, w: u32, h
         .collect()
 }
 
-/// `--memory`: bytes, or "1/N" of `data_bytes`.
+/// `--memory`: bytes, or "A/B" of `data_bytes` (the input's data: a terrain's records, a mesh).
 fn parse_memory(s: &str, data_bytes: u64) -> anyhow::Result<u64> {
     if let Some((a, b)) = s.split_once('/') {
         match (a.trim().parse::<f64>(), b.trim().parse::<f64>()) {
             (Ok(a), Ok(b)) if a > 0.0 && b > 0.0 && a.is_finite() && b.is_finite() => {
                 return Ok((data_bytes as f64 * a / b) as u64)
             }
-            _ => bail!("--memory: expected bytes (64M) or a fraction of the terrain's data (1/16), got '{s}'"),
+            _ => bail!("--memory: expected bytes (64M) or a fraction of the input's data (1/16), got '{s}'"),
         }
     }
     parse_bytes("--memory", s)
@@ -1178,6 +1227,54 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 if let Some(b) = info.bounds {
                     println!("  bounds: min {:?} max {:?}", b.min, b.max);
                 }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Mesh {
+            kind: MeshCommand::Build { input, output, memory, metric, levels_per_node, page_size, json, quiet },
+        } => {
+            if levels_per_node == 0 {
+                bail!("--levels-per-node must be at least 1");
+            }
+            let page_bytes = parse_bytes("--page-size", &page_size)?;
+            if page_bytes == 0 {
+                bail!("--page-size must be at least 1 byte");
+            }
+            // The budget may be a fraction of the mesh, so the mesh is read first (the build
+            // measures its memory after ingest either way).
+            let start = std::time::Instant::now();
+            let mesh = relief::mesh::read_mesh(&input)?;
+            let mesh_bytes = mesh.positions.len() as u64 * 24 + mesh.triangles.len() as u64 * 12;
+            let memory_bytes = parse_memory(&memory, mesh_bytes)?;
+            if memory_bytes == 0 {
+                bail!("--memory must be more than 0 bytes");
+            }
+            let mut options = relief::vdtree::build::BuildOptions::new(memory_bytes, metric.into());
+            options.progress = progress(quiet);
+            let mut report = relief::vdtree::build::build_vdt_from_mesh(mesh, &output, &options)?;
+            // Ingest as the user waits for it: reading the file too.
+            report.ingest_ms = start.elapsed().as_secs_f64() * 1e3 - report.build_ms;
+            // META-NODE STEP (src/vdtree/metanode.rs, chained here later): block the forest in
+            // OUTPUT into meta-nodes of `levels_per_node` levels sized to `page_bytes` pages.
+            let _ = (levels_per_node, page_bytes);
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                println!(
+                    "{}: {} leaves, {} nodes, {} roots, {} triangles ({} base); {} batches, {:.0} ms build (+{:.0} ms ingest), peak {} accounted, {} anon RSS above the start of the build phase, budget {}",
+                    output.display(),
+                    report.leaves,
+                    report.nodes,
+                    report.roots,
+                    report.triangles,
+                    report.base_triangles,
+                    report.batches,
+                    report.build_ms,
+                    report.ingest_ms,
+                    fmt_bytes(report.peak_accounted_bytes),
+                    fmt_bytes(report.peak_rss_anon_bytes.saturating_sub(report.rss_anon_baseline_bytes)),
+                    fmt_bytes(report.memory_budget_bytes)
+                );
             }
             Ok(ExitCode::SUCCESS)
         }

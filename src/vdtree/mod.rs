@@ -80,3 +80,9 @@ pub struct VdtNode {
 pub struct VdtTriangle {
     pub corners: [u32; 3],
 }
+
+pub mod build;
+pub mod simplify;
+pub mod vdt;
+
+pub use vdt::{VdtFile, VdtHeader, VdtMetric};
