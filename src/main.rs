@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 
-use anyhow::bail;
+use anyhow::{bail, Context};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand};
 
@@ -385,6 +385,36 @@ enum MeshCommand {
         #[command(flatten)]
         show: MeshShowArgs,
     },
+    /// Fly over a meta-node file (from `relief mesh build`) with view-dependent refinement: in a
+    /// window, or headless along a path (`relief path orbit FILE`).
+    ///
+    /// Each frame the active nodes are split or collapsed against their switch values at the
+    /// screen-space tolerance (--tolerance, pixels), respecting the implicit dependencies. In ext
+    /// mode meta-nodes come through a buffer pool of --memory bytes with an I/O thread (a switch
+    /// whose meta-node is not in memory is a miss: put off, and an urgent prefetch sent); in virt
+    /// mode straight from the memory-mapped file (the OS pages it in, the navigation waits).
+    /// Per frame: splits + collapses (adapt), triangles, misses (% of wanted switches), pages read,
+    /// adapt/render/frame ms.
+    Fly {
+        /// Meta-node file.
+        file: PathBuf,
+        /// ext: buffer pool + I/O thread; virt: the plain memory map.
+        #[arg(long, value_enum, default_value = "ext")]
+        mode: NavMode,
+        /// ext: the buffer pool's memory, BYTES (K/M/G suffixes) or a fraction A/B of the tree on
+        /// disk (DATA + MNT), e.g. 1/4.
+        #[arg(long, value_name = "BYTES", default_value = "1/4")]
+        memory: String,
+        /// Limit what the flight allocates and pages in after start-up to BYTES (a cgroup v1
+        /// memory limit, both modes), so a tree larger than that cannot stay in memory.
+        #[arg(long, value_name = "BYTES")]
+        cap: Option<String>,
+        /// Evict the file from the page cache first and turn off readahead (a cold start).
+        #[arg(long)]
+        cold: bool,
+        #[command(flatten)]
+        show: MeshShowArgs,
+    },
     /// Read a mesh (OFF, PLY ASCII/binary, OBJ; optionally gzip'd) and print its vertices,
     /// triangles, bounds and the degenerate triangles dropped.
     Info {
@@ -401,8 +431,12 @@ enum MeshCommand {
     Build {
         /// Mesh file (OFF, PLY, OBJ; optionally gzip'd).
         input: PathBuf,
-        /// VDT file to write.
+        /// Meta-node file to write (the DATA blocks and the MNT table in one file).
         output: PathBuf,
+        /// Also keep the intermediate view-dependence forest (VDT file) here [default: a
+        /// temporary file beside OUTPUT, removed].
+        #[arg(long, value_name = "VDT")]
+        vdt: Option<PathBuf>,
         /// Memory budget of the build phase: BYTES with an optional binary K/M/G suffix (64M,
         /// 1.5G), or a fraction "A/B" of the mesh's size in memory (24 bytes a vertex plus 12 a
         /// triangle). It covers the redb page cache (1/8 of it), the scratch buffers and the
@@ -414,7 +448,7 @@ enum MeshCommand {
         #[arg(long, value_enum, default_value = "length")]
         metric: VdtMetricArg,
         /// Levels of the binary forest per meta-node (for the meta-node step).
-        #[arg(long, value_name = "L", default_value_t = 4)]
+        #[arg(long, value_name = "L", default_value_t = 8)]
         levels_per_node: u32,
         /// Disk page size of the meta-node file, BYTES (K/M/G suffixes allowed).
         #[arg(long, value_name = "BYTES", default_value = "4096")]
@@ -486,6 +520,9 @@ struct MeshShowArgs {
     /// Window: close after this many frames (scripted runs).
     #[arg(long, value_name = "N", conflicts_with = "path")]
     exit_after_frames: Option<u64>,
+    /// Headless: adapt only, no rendering (times the simplification and its I/O alone).
+    #[arg(long, requires = "path")]
+    no_render: bool,
     /// No progress bars.
     #[arg(long, short)]
     quiet: bool,
@@ -550,8 +587,8 @@ fn show_mesh(
         stats_out: show.stats,
         progress: progress(show.quiet),
     };
-    let gpu = Gpu::headless()?;
-    let report = fly_mesh_headless(&gpu, source, &cameras, &options)?;
+    let gpu = if show.no_render { None } else { Some(Gpu::headless()?) };
+    let report = fly_mesh_headless(gpu.as_ref(), source, &cameras, &options)?;
     let s = &report.summary;
     if show.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -573,6 +610,13 @@ fn show_mesh(
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `--mode` of `relief mesh fly`.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum NavMode {
+    Ext,
+    Virt,
 }
 
 /// `--metric` of `relief mesh build`.
@@ -673,9 +717,13 @@ fn up_parser() -> impl clap::builder::TypedValueParser<Value = UpAxis> {
 /// Whether `path` starts with the terrain file magic (a mesh otherwise; unreadable files are left
 /// to the mesh reader to report).
 fn is_terrain_file(path: &std::path::Path) -> bool {
+    has_magic(path, &relief::format::MAGIC)
+}
+
+/// Whether the file starts with these 8 bytes.
+fn has_magic(path: &std::path::Path, expected: &[u8; 8]) -> bool {
     let mut magic = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic)).is_ok()
-        && magic == relief::format::MAGIC
+    std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic)).is_ok() && &magic == expected
 }
 
 /// A window's start from `--eye` and `--look` (clap makes them come together).
@@ -1131,6 +1179,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     bail!("--up: a terrain's up axis is z");
                 }
                 PathSubject::Terrain(TerrainFile::open(file)?)
+            } else if has_magic(file, &relief::vdtree::metanode::MAGIC) {
+                let bounds = relief::vdtree::metanode::MetaNodeFile::open(file)?.header().bounds;
+                PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
             } else {
                 let mesh = relief::mesh::read_mesh(file)?;
                 let bounds = mesh.bounds().ok_or_else(|| anyhow::anyhow!("{}: no vertices", file.display()))?;
@@ -1196,6 +1247,46 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let mut source = StaticMesh::new(&mesh)?;
             show_mesh(&mut source, &input, "static", flight, show)
         }
+        Command::Mesh { kind: MeshCommand::Fly { file, mode, memory, cap, cold, show } } => {
+            use relief::vdtree::metanode::MetaNodeFile;
+            use relief::vdtree::navigate::{ExtStore, NavOptions, Navigator, VirtStore};
+            use relief::vdtree::source::NavSource;
+            show.check()?;
+            let flight = show.path.as_deref().map(FlightPath::load).transpose()?;
+            if flight.is_none() {
+                check_display()?;
+            }
+            let cap_bytes = cap.as_deref().map(|c| parse_bytes("--cap", c)).transpose()?;
+            if cold {
+                relief::pager::drop_from_page_cache(&file)?;
+            }
+            let meta = std::sync::Arc::new(MetaNodeFile::open(&file)?);
+            if cold {
+                meta.advise_random()?;
+            }
+            let memory_bytes = parse_memory(&memory, meta.tree_bytes())?;
+            let bounds = meta.header().bounds;
+            // The cap covers what the flight does, not start-up (cgroup v1 keeps earlier charges
+            // where they were).
+            let apply_cap = || cap_bytes.map(relief::pager::MemoryCap::apply).transpose();
+            match mode {
+                NavMode::Virt => {
+                    let nav = Navigator::new(&meta, VirtStore::new(&meta), NavOptions::default())?;
+                    let _cap = apply_cap()?;
+                    let mut source = NavSource::new(nav, bounds);
+                    show_mesh(&mut source, &file, "meta-node trees, virt", flight, show)
+                }
+                NavMode::Ext => {
+                    let store = ExtStore::new(meta.clone(), memory_bytes)?;
+                    let holders = store.pool().holders();
+                    let nav = Navigator::new(&meta, store, NavOptions::default())?;
+                    let _cap = apply_cap()?;
+                    let mut source = NavSource::new(nav, bounds);
+                    let name = format!("meta-node trees, ext, {holders} holders of {} B", meta.header().holder_bytes);
+                    show_mesh(&mut source, &file, &name, flight, show)
+                }
+            }
+        }
         Command::Mesh { kind: MeshCommand::Info { file, json } } => {
             let start = std::time::Instant::now();
             let (mesh, report) = relief::mesh::read_mesh_with_report(&file)?;
@@ -1231,7 +1322,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Mesh {
-            kind: MeshCommand::Build { input, output, memory, metric, levels_per_node, page_size, json, quiet },
+            kind: MeshCommand::Build { input, output, vdt, memory, metric, levels_per_node, page_size, json, quiet },
         } => {
             if levels_per_node == 0 {
                 bail!("--levels-per-node must be at least 1");
@@ -1251,18 +1342,58 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             let mut options = relief::vdtree::build::BuildOptions::new(memory_bytes, metric.into());
             options.progress = progress(quiet);
-            let mut report = relief::vdtree::build::build_vdt_from_mesh(mesh, &output, &options)?;
+            if !page_bytes.is_power_of_two() || page_bytes < 512 || page_bytes > 1 << 20 {
+                bail!("--page-size must be a power of two from 512 bytes to 1M, got {page_bytes}");
+            }
+            let blocking = relief::vdtree::metanode::BlockingOptions { levels_per_node, page_bytes: page_bytes as u32 };
+            // The forest goes to a temporary file beside the output unless --vdt keeps it.
+            let dir = match output.parent() {
+                Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+                _ => PathBuf::from("."),
+            };
+            let scratch = tempfile::Builder::new().prefix(".relief-vdt.").tempdir_in(&dir).with_context(|| format!("{}: cannot create a scratch directory", dir.display()))?;
+            let vdt_path = vdt.clone().unwrap_or_else(|| scratch.path().join("forest.vdt"));
+            let mut report = relief::vdtree::build::build_vdt_from_mesh(mesh, &vdt_path, &options)?;
             // Ingest as the user waits for it: reading the file too.
             report.ingest_ms = start.elapsed().as_secs_f64() * 1e3 - report.build_ms;
-            // META-NODE STEP (src/vdtree/metanode.rs, chained here later): block the forest in
-            // OUTPUT into meta-nodes of `levels_per_node` levels sized to `page_bytes` pages.
-            let _ = (levels_per_node, page_bytes);
+            let forest_file = relief::vdtree::VdtFile::open(&vdt_path)?;
+            let forest = relief::vdtree::metanode::Forest {
+                nodes: forest_file.nodes(),
+                triangles: forest_file.triangles(),
+                base_triangles: forest_file.base_triangles().len(),
+                leaves: forest_file.leaves() as u32,
+                metric: forest_file.metric() as u32,
+                bounds: forest_file.bounds(),
+            };
+            let meta = relief::vdtree::metanode::write_metanode_file(&forest, blocking, &output)?;
+            drop(forest_file);
+            #[derive(serde::Serialize)]
+            struct MeshBuild<'a> {
+                #[serde(flatten)]
+                vdt: &'a relief::vdtree::build::BuildReport,
+                metanode: &'a relief::vdtree::metanode::MetaNodeReport,
+                levels_per_node: u32,
+                page_bytes: u64,
+            }
             if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
+                let both = MeshBuild { vdt: &report, metanode: &meta, levels_per_node, page_bytes };
+                println!("{}", serde_json::to_string_pretty(&both)?);
             } else {
                 println!(
-                    "{}: {} leaves, {} nodes, {} roots, {} triangles ({} base); {} batches, {:.0} ms build (+{:.0} ms ingest), peak {} accounted, {} anon RSS above the start of the build phase, budget {}",
+                    "{}: {} meta-nodes ({} roots, {:.1} nodes and {:.0}% of a {}-byte page each on average), DATA {}, MNT {}, {:.0} ms",
                     output.display(),
+                    meta.metanodes,
+                    meta.root_metanodes,
+                    meta.nodes_per_metanode_mean,
+                    meta.fill_mean * 100.0,
+                    page_bytes,
+                    fmt_bytes(meta.data_bytes),
+                    fmt_bytes(meta.mnt_bytes),
+                    meta.build_ms
+                );
+                println!(
+                    "{}: {} leaves, {} nodes, {} roots, {} triangles ({} base); {} batches, {:.0} ms build (+{:.0} ms ingest), peak {} accounted, {} anon RSS above the start of the build phase, budget {}",
+                    vdt.as_deref().unwrap_or(std::path::Path::new("forest")).display(),
                     report.leaves,
                     report.nodes,
                     report.roots,

@@ -309,7 +309,7 @@ impl MeshFlySummary {
 /// Adapts `source` to each of `cameras` and renders it offscreen, one frame each; writes the PNGs
 /// and the JSON report where `options` asks, and returns the report.
 pub fn fly_mesh_headless(
-    gpu: &Gpu,
+    gpu: Option<&Gpu>,
     source: &mut dyn MeshFrameSource,
     cameras: &[Camera],
     options: &MeshFlyOptions,
@@ -327,8 +327,14 @@ pub fn fly_mesh_headless(
     if let Some(dir) = &options.frames_out {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }
-    let target = Offscreen::new(gpu, options.width_px, options.height_px)?;
-    let mut stage = MeshStage::new(gpu, OFFSCREEN_FORMAT, source.bounds(), options.up)?;
+    // Without a GPU only the adaptation runs (timing navigation alone).
+    let mut targets = match gpu {
+        Some(gpu) => Some((
+            Offscreen::new(gpu, options.width_px, options.height_px)?,
+            MeshStage::new(gpu, OFFSCREEN_FORMAT, source.bounds(), options.up)?,
+        )),
+        None => None,
+    };
     let bar = options.progress.bar("fly", cameras.len() as u64, "frames");
     let mut frames = Vec::with_capacity(cameras.len());
     let t_all = Instant::now();
@@ -337,21 +343,25 @@ pub fn fly_mesh_headless(
         let t0 = Instant::now();
         let stats = source.update(camera, options.tolerance_px)?;
         let t_render = Instant::now();
-        let upload_bytes = stage.sync(gpu, source, &stats, camera)?;
-        let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        stage.encode(gpu, &mut encoder, &target.colour_view, &target.depth_view, camera, options.style);
-        gpu.queue.submit([encoder.finish()]);
-        gpu.wait_idle()?;
-        let render_ms = t_render.elapsed().as_secs_f64() * 1e3;
-        if let Some(dir) = &options.frames_out {
-            save_png(&target.read_rgba(gpu)?, &dir.join(format!("frame_{k:05}.png")))?;
+        let (mut upload_bytes, mut triangles) = (0, stats.triangles);
+        if let (Some(gpu), Some((target, stage))) = (gpu, targets.as_mut()) {
+            upload_bytes = stage.sync(gpu, source, &stats, camera)?;
+            let mut encoder = gpu.device.create_command_encoder(&Default::default());
+            stage.encode(gpu, &mut encoder, &target.colour_view, &target.depth_view, camera, options.style);
+            gpu.queue.submit([encoder.finish()]);
+            gpu.wait_idle()?;
+            triangles = stage.renderer.triangles();
+            if let Some(dir) = &options.frames_out {
+                save_png(&target.read_rgba(gpu)?, &dir.join(format!("frame_{k:05}.png")))?;
+            }
         }
+        let render_ms = t_render.elapsed().as_secs_f64() * 1e3;
         frames.push(MeshFrameReport {
             frame: k,
             adapt: stats.adapt(),
             splits: stats.splits,
             collapses: stats.collapses,
-            triangles: stage.renderer.triangles(),
+            triangles,
             misses: stats.misses,
             miss_pct: stats.miss_pct(),
             pages_read: stats.pages_read,
@@ -364,7 +374,12 @@ pub fn fly_mesh_headless(
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let summary = MeshFlySummary::of(&frames, t_all.elapsed().as_secs_f64(), options, gpu.describe());
+    let summary = MeshFlySummary::of(
+        &frames,
+        t_all.elapsed().as_secs_f64(),
+        options,
+        gpu.map_or_else(|| "none (adaptation only)".to_string(), Gpu::describe),
+    );
     let report = MeshFlyReport { frames, summary };
     if let Some(out) = &options.stats_out {
         let text = serde_json::to_string_pretty(&report)

@@ -240,7 +240,7 @@ fn headless_mesh_flight_writes_frames_and_the_json_report() {
         stats_out: Some(stats.clone()),
         progress: Progress::hidden(),
     };
-    let report = fly_mesh_headless(&gpu, &mut source, &cameras, &options).unwrap();
+    let report = fly_mesh_headless(Some(&gpu), &mut source, &cameras, &options).unwrap();
     let triangles = source.triangles().len() as u64 / 3;
     let uploads: Vec<u64> = report.frames.iter().map(|f| f.upload_bytes).collect();
     let full = triangles * 3 * MESH_VERTEX_BYTES;

@@ -321,11 +321,26 @@ fn plan(forest: &Forest<'_>, options: BlockingOptions, out: &Path) -> Result<Pla
 
     let page = options.page_bytes as usize;
     let levels = options.levels_per_node;
-    // Estimated bytes of a group root's first L levels, for packing sibling subtrees.
+    // Bytes of a group root's first L levels (capped at a page), for packing sibling subtrees:
+    // counted, since view-dependence trees are far from balanced.
     let estimate = |v: u32| -> usize {
-        let full = (1u64 << levels) - 1;
-        let subtree = 2 * nodes[v as usize].leaves as u64 - 1;
-        (subtree.min(full) as usize) * (NODE_BYTES + COORD_BYTES / 2 + TRI_BYTES * 2)
+        let mut bytes = 0;
+        let mut level = vec![v];
+        for _ in 0..levels {
+            let mut next = Vec::new();
+            for &u in &level {
+                let node = &nodes[u as usize];
+                bytes += NODE_BYTES + COORD_BYTES / 2 + TRI_BYTES * node.tri_count as usize;
+                if node.children[0] != NONE {
+                    next.extend(node.children);
+                }
+            }
+            if bytes >= page || next.is_empty() {
+                break;
+            }
+            level = next;
+        }
+        bytes.min(page)
     };
     let group = |frontier: &[u32]| -> Vec<Vec<u32>> {
         let mut groups: Vec<Vec<u32>> = Vec::new();
@@ -577,6 +592,19 @@ impl MetaNodeFile {
 
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// No readahead, for the map and for `pread`: a cold flight then reads exactly the pages it
+    /// touches, so Virt and Ext are compared on the same I/O.
+    pub fn advise_random(&self) -> Result<()> {
+        use std::os::fd::AsRawFd;
+        self.map.advise(memmap2::Advice::Random).at(&self.path)?;
+        // SAFETY: posix_fadvise only reads the descriptor, which `self.file` keeps open.
+        let rc = unsafe { libc::posix_fadvise(self.file.as_raw_fd(), 0, 0, libc::POSIX_FADV_RANDOM) };
+        if rc != 0 {
+            return Err(Error::io(&self.path, std::io::Error::from_raw_os_error(rc)));
+        }
+        Ok(())
     }
 
     pub fn header(&self) -> &MetaHeader {

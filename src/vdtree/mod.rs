@@ -45,6 +45,7 @@ use bytemuck::{Pod, Zeroable};
 
 pub mod metanode;
 pub mod navigate;
+pub mod source;
 
 pub const NONE: u32 = u32::MAX;
 
