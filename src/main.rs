@@ -523,6 +523,10 @@ struct MeshShowArgs {
     /// Headless: adapt only, no rendering (times the simplification and its I/O alone).
     #[arg(long, requires = "path")]
     no_render: bool,
+    /// Headless: start frames at least MS milliseconds apart, like a display (with --no-render,
+    /// the time a renderer would take, during which prefetching goes on); not counted in frame_ms.
+    #[arg(long, value_name = "MS", default_value_t = 0.0, requires = "path")]
+    pace: f64,
     /// No progress bars.
     #[arg(long, short)]
     quiet: bool,
@@ -577,7 +581,11 @@ fn show_mesh(
                 .map_err(|e| anyhow::anyhow!("{}: frame {k}: {e}", path.display()))
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
+    if !(show.pace >= 0.0 && show.pace.is_finite()) {
+        bail!("--pace: expected milliseconds ≥ 0, got {}", show.pace);
+    }
     let options = MeshFlyOptions {
+        pace_ms: show.pace,
         width_px: show.width,
         height_px: show.height,
         tolerance_px: show.tolerance,

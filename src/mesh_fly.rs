@@ -203,6 +203,10 @@ pub struct MeshFlyOptions {
     pub frames_out: Option<PathBuf>,
     /// Write the report (`{"frames":[…],"summary":{…}}`) here as JSON.
     pub stats_out: Option<PathBuf>,
+    /// Start frames at least this many milliseconds apart (0: back to back). Without rendering
+    /// this stands in for a display's frame time, during which an I/O thread can prefetch; the
+    /// wait is not counted in `frame_ms`.
+    pub pace_ms: f64,
     pub progress: Progress,
 }
 
@@ -338,8 +342,13 @@ pub fn fly_mesh_headless(
     let bar = options.progress.bar("fly", cameras.len() as u64, "frames");
     let mut frames = Vec::with_capacity(cameras.len());
     let t_all = Instant::now();
+    let mut next_start = Instant::now();
     for (k, camera) in cameras.iter().enumerate() {
         crate::cancel::check()?;
+        if let Some(wait) = next_start.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        next_start = Instant::now() + std::time::Duration::from_secs_f64(options.pace_ms.max(0.0) / 1e3);
         let t0 = Instant::now();
         let stats = source.update(camera, options.tolerance_px)?;
         let t_render = Instant::now();

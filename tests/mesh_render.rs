@@ -231,6 +231,7 @@ fn headless_mesh_flight_writes_frames_and_the_json_report() {
     let cameras: Vec<Camera> = (0..4).map(|k| path.camera_with_up(k, up, 60.0, 96, 64).unwrap()).collect();
     let (frames_dir, stats) = (dir.path().join("frames"), dir.path().join("stats.json"));
     let options = MeshFlyOptions {
+        pace_ms: 0.0,
         width_px: 96,
         height_px: 64,
         tolerance_px: 1.0,

@@ -341,15 +341,16 @@ impl<S: MetaStore> Navigator<S> {
             return Err(Error::InvalidArgument(format!("node {}: children do not split its leaves", pnode.id)));
         }
         // The triangles the split creates bring a third corner that need not be p's neighbour
-        // yet: it must also have coexisted with a and b during the construction.
-        let youngest_child = a.id.max(b.id);
+        // yet: it too must be older than p. (Also asking it to be younger than p's children's
+        // parents would keep the invariant checked in `check` by construction, but deadlocks:
+        // two such nodes can each wait for the other.)
         for leaves in &created {
             for &d in leaves {
                 if pnode.covers(d) {
                     continue;
                 }
                 let Some((_, x)) = self.active.range(..=d).next_back() else { continue };
-                if x.node.id > pnode.id || x.node.parent_id <= youngest_child {
+                if x.node.id > pnode.id {
                     self.store.use_block(pnode.child_meta[0], -1);
                     self.store.use_block(pnode.child_meta[1], -1);
                     return Ok(Outcome::Blocked);
@@ -531,6 +532,26 @@ impl<S: MetaStore> Navigator<S> {
         }
     }
 
+    /// Pairs of adjacent active nodes that never coexisted during the construction (one is not
+    /// older than the other's parent). The El-Sana–Varshney argument keeps this at 0 when every
+    /// neighbour, including the third corners of the triangles a split creates, is checked on
+    /// both sides; relief checks the third corners only for age, because the two-sided test can
+    /// deadlock (two nodes each waiting for the other; seen on the dragon). What matters, no
+    /// foldover, is checked per switch by [`NavOptions::check_foldover`]. For tests; O(triangles).
+    pub fn coexistence_violations(&self) -> u64 {
+        let mut count = 0;
+        for (t, &l) in self.tris.iter().zip(&self.live) {
+            if !l {
+                continue;
+            }
+            for k in 0..3 {
+                let (u, v) = (&self.active[&t.corners[k]].node, &self.active[&t.corners[(k + 1) % 3]].node);
+                count += (u.id >= v.parent_id || v.id >= u.parent_id) as u64;
+            }
+        }
+        count
+    }
+
     /// The active triangles by corner leaves (for tests: compare with the forest's m(t)).
     pub fn triangle_leaves(&self) -> Vec<[u32; 3]> {
         self.tris.iter().zip(&self.live).filter(|(_, &l)| l).map(|(t, _)| t.leaves).collect()
@@ -565,19 +586,6 @@ impl<S: MetaStore> Navigator<S> {
                 let a = self.active.get(&t.corners[k]).ok_or(format!("triangle {s}: corner not active"))?;
                 if !a.node.covers(t.leaves[k]) || a.position != t.positions[k] || !a.adj.contains(&(s as u32)) {
                     return Err(format!("triangle {s}: corner {k} inconsistent"));
-                }
-            }
-        }
-        // The implicit dependencies' invariant: adjacent active nodes coexisted during the
-        // construction (each is older than the other's parent).
-        for (s, (t, &l)) in self.tris.iter().zip(&self.live).enumerate() {
-            if !l {
-                continue;
-            }
-            for k in 0..3 {
-                let (u, v) = (&self.active[&t.corners[k]].node, &self.active[&t.corners[(k + 1) % 3]].node);
-                if u.id >= v.parent_id || v.id >= u.parent_id {
-                    return Err(format!("triangle {s}: nodes {} and {} never coexisted", u.id, v.id));
                 }
             }
         }
@@ -972,7 +980,7 @@ mod tests {
             assert_eq!(ext.active_ids(), virt.active_ids());
         }
         // A tiny pool: misses happen, the bookkeeping stays right, nothing in use is evicted.
-        let mut tiny = Navigator::new(&f, ExtStore::with_holders(f.clone(), 8).unwrap(), NavOptions { check_foldover: true }).unwrap();
+        let mut tiny = Navigator::new(&f, ExtStore::with_holders(f.clone(), 16).unwrap(), NavOptions { check_foldover: true }).unwrap();
         let mut misses = 0;
         for (k, (cam, tol)) in views.iter().enumerate() {
             let s = tiny.update(cam, *tol).unwrap();
@@ -986,7 +994,7 @@ mod tests {
                 tiny.store().pool().drain().unwrap();
             }
         }
-        assert!(misses > 0, "8 holders for {metas} meta-nodes must miss");
+        assert!(misses > 0, "16 holders for {metas} meta-nodes must miss");
         assert_eq!(tiny.foldovers(), 0);
         let stats = tiny.store().pool().stats();
         assert!(stats.disk_reads > 8 && stats.second_chance_hits > 0, "{stats:?}");
