@@ -145,6 +145,9 @@ pub struct Navigator<S: MetaStore> {
     /// For each split node (by id), the triangle slots its split created.
     created: HashMap<u32, Vec<u32>>,
     soup: Vec<[f32; 3]>,
+    /// Nodes split by force this frame (by id): not collapsed again in the same frame, or a
+    /// forced split and the collapse of its unwanted children would alternate.
+    forced: std::collections::HashSet<u32>,
     options: NavOptions,
     foldovers: u64,
     worklist: Vec<u32>,
@@ -164,6 +167,7 @@ impl<S: MetaStore> Navigator<S> {
             free: Vec::new(),
             created: HashMap::new(),
             soup: Vec::new(),
+            forced: std::collections::HashSet::new(),
             options,
             foldovers: 0,
             worklist: Vec::new(),
@@ -237,6 +241,7 @@ impl<S: MetaStore> Navigator<S> {
     pub fn update(&mut self, camera: &Camera, tolerance_px: f64) -> Result<AdaptStats> {
         let view = View { eye: camera.eye_in_world, kappa: camera.kappa(tolerance_px), planes: camera.frustum_normals() };
         let mut stats = AdaptStats::default();
+        self.forced.clear();
         self.worklist.clear();
         self.worklist.extend(self.active.keys().rev());
         while let Some(key) = self.worklist.pop() {
@@ -252,12 +257,22 @@ impl<S: MetaStore> Navigator<S> {
                         self.push_around(b);
                     }
                     Outcome::Miss => stats.misses += 1,
-                    Outcome::Blocked => stats.blocked += 1,
+                    Outcome::Blocked(blocker) => {
+                        stats.blocked += 1;
+                        // Force the older-blocking neighbour to split (it may not want to, e.g.
+                        // outside the view), then try again: without this, refinement stalls
+                        // wherever a coarse unwanted node borders the wanted region.
+                        if let Some(b) = blocker {
+                            if self.force_split(b, FORCE_DEPTH, &mut stats)? {
+                                self.worklist.push(key);
+                            }
+                        }
+                    }
                 }
             } else if !node.is_root() {
                 let Some((first, second)) = self.sibling_pair(key) else { continue };
                 let position = self.active[&first].position;
-                if view.wants(position, node.parent_switch, node.parent_radius) {
+                if self.forced.contains(&node.parent_id) || view.wants(position, node.parent_switch, node.parent_radius) {
                     continue;
                 }
                 match self.try_collapse(first, second)? {
@@ -266,7 +281,7 @@ impl<S: MetaStore> Navigator<S> {
                         self.push_around(first);
                     }
                     Outcome::Miss => stats.misses += 1,
-                    Outcome::Blocked => stats.blocked += 1,
+                    Outcome::Blocked(_) => stats.blocked += 1,
                 }
             }
         }
@@ -274,6 +289,42 @@ impl<S: MetaStore> Navigator<S> {
         stats.triangles = self.triangle_count() as u64;
         stats.active_nodes = self.active.len() as u64;
         Ok(stats)
+    }
+
+    /// Splits the node at `key` whether or not the view wants it, first forcing the neighbours
+    /// that block it (up to `depth` deep). Whether it split.
+    fn force_split(&mut self, key: u32, depth: u32, stats: &mut AdaptStats) -> Result<bool> {
+        if self.active.get(&key).is_none_or(|a| a.node.is_leaf()) {
+            return Ok(false);
+        }
+        for _ in 0..4 {
+            let id = self.active[&key].node.id;
+            match self.try_split(key)? {
+                Outcome::Done => {
+                    stats.splits += 1;
+                    self.forced.insert(id);
+                    let b = key + self.active[&key].node.leaves;
+                    self.push_around(key);
+                    self.push_around(b);
+                    return Ok(true);
+                }
+                Outcome::Miss => {
+                    stats.misses += 1;
+                    return Ok(false);
+                }
+                Outcome::Blocked(Some(b)) if depth > 0 => {
+                    stats.blocked += 1;
+                    if !self.force_split(b, depth - 1, stats)? {
+                        return Ok(false);
+                    }
+                }
+                Outcome::Blocked(_) => {
+                    stats.blocked += 1;
+                    return Ok(false);
+                }
+            }
+        }
+        Ok(false)
     }
 
     /// Queues the node at `key` and its neighbours for another test.
@@ -309,7 +360,7 @@ impl<S: MetaStore> Navigator<S> {
         for &t in &p.adj {
             for &c in &self.tris[t as usize].corners {
                 if c != key && self.active[&c].node.id > pnode.id {
-                    return Ok(Outcome::Blocked);
+                    return Ok(Outcome::Blocked(Some(c)));
                 }
             }
         }
@@ -349,11 +400,11 @@ impl<S: MetaStore> Navigator<S> {
                 if pnode.covers(d) {
                     continue;
                 }
-                let Some((_, x)) = self.active.range(..=d).next_back() else { continue };
+                let Some((&xkey, x)) = self.active.range(..=d).next_back() else { continue };
                 if x.node.id > pnode.id {
                     self.store.use_block(pnode.child_meta[0], -1);
                     self.store.use_block(pnode.child_meta[1], -1);
-                    return Ok(Outcome::Blocked);
+                    return Ok(Outcome::Blocked(Some(xkey)));
                 }
             }
         }
@@ -400,7 +451,7 @@ impl<S: MetaStore> Navigator<S> {
             for &t in &x.adj {
                 for &c in &self.tris[t as usize].corners {
                     if c != first && c != second && self.active[&c].node.parent_id <= parent_id {
-                        return Ok(Outcome::Blocked);
+                        return Ok(Outcome::Blocked(None));
                     }
                 }
             }
@@ -603,8 +654,12 @@ impl<S: MetaStore> Navigator<S> {
 enum Outcome {
     Done,
     Miss,
-    Blocked,
+    /// Refused by a dependency; for a split, the neighbour that must split first.
+    Blocked(Option<u32>),
 }
+
+/// How far a forced split may recurse through blocking neighbours in one go.
+const FORCE_DEPTH: u32 = 32;
 
 struct View {
     eye: DVec3,
