@@ -412,6 +412,9 @@ enum MeshCommand {
         /// Evict the file from the page cache first and turn off readahead (a cold start).
         #[arg(long)]
         cold: bool,
+        /// ext: prefetch only the parents of the meta-nodes in use, not also their children.
+        #[arg(long)]
+        parent_prefetch_only: bool,
         #[command(flatten)]
         show: MeshShowArgs,
     },
@@ -1255,7 +1258,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let mut source = StaticMesh::new(&mesh)?;
             show_mesh(&mut source, &input, "static", flight, show)
         }
-        Command::Mesh { kind: MeshCommand::Fly { file, mode, memory, cap, cold, show } } => {
+        Command::Mesh { kind: MeshCommand::Fly { file, mode, memory, cap, cold, parent_prefetch_only, show } } => {
             use relief::vdtree::metanode::MetaNodeFile;
             use relief::vdtree::navigate::{ExtStore, NavOptions, Navigator, VirtStore};
             use relief::vdtree::source::NavSource;
@@ -1287,7 +1290,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 NavMode::Ext => {
                     let store = ExtStore::new(meta.clone(), memory_bytes)?;
                     let holders = store.pool().holders();
-                    let nav = Navigator::new(&meta, store, NavOptions::default())?;
+                    let nav = Navigator::new(&meta, store, NavOptions { parent_prefetch_only, ..NavOptions::default() })?;
                     let _cap = apply_cap()?;
                     let mut source = NavSource::new(nav, bounds);
                     let name = format!("meta-node trees, ext, {holders} holders of {} B", meta.header().holder_bytes);

@@ -92,7 +92,7 @@ fn small_memory_build_matches_the_unlimited_build_along_a_path() {
 fn random_navigation_on_a_real_mesh_keeps_its_books_without_foldovers() {
     let dir = tempfile::tempdir().unwrap();
     let (_, f) = build(&common::mesh("bunny.off"), 1 << 32, dir.path(), "bunny", BlockingOptions::default());
-    let mut nav = Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true }).unwrap();
+    let mut nav = Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
     let (mut splits, mut collapses) = (0, 0);
     for (k, (cam, tol)) in random_cameras(&f, 60, 5).iter().enumerate() {
         let s = nav.update(cam, *tol).unwrap();
@@ -115,7 +115,7 @@ fn a_tiny_buffer_pool_never_evicts_a_meta_node_in_use() {
     let holders = f.header().metanodes as usize / 16;
     assert!(holders > f.header().root_metanodes as usize + 8);
     let store = ExtStore::with_holders(f.clone(), holders).unwrap();
-    let mut nav = Navigator::new(&f, store, NavOptions { check_foldover: true }).unwrap();
+    let mut nav = Navigator::new(&f, store, NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
     let (mut misses, mut adapts) = (0, 0);
     for (k, (cam, tol)) in random_cameras(&f, 200, 11).iter().enumerate() {
         let s = nav.update(cam, *tol).unwrap();

@@ -51,6 +51,8 @@ pub trait MetaStore {
     fn reference(&mut self, _meta: u32, _delta: i32) {}
     /// An urgent prefetch for a wanted split (`up = false`) or collapse (`up = true`).
     fn request_urgent(&mut self, _meta: u32, _up: bool) {}
+    /// Called once at the end of every update.
+    fn end_frame(&mut self) {}
     /// Pages read from disk so far.
     fn pages_read(&self) -> u64;
     fn second_chance_hits(&self) -> u64 {
@@ -97,7 +99,8 @@ pub fn parse_block<'b>(file: &MetaNodeFile, meta: u32, bytes: &'b [u8]) -> Resul
 pub struct AdaptStats {
     pub splits: u64,
     pub collapses: u64,
-    /// Wanted splits or collapses abandoned because their meta-node was not in memory.
+    /// Nodes whose wanted split or collapse was abandoned because the meta-node it needed was
+    /// not in memory (once per node and frame).
     pub misses: u64,
     /// Wanted splits or collapses refused by the implicit dependencies (not misses).
     pub blocked: u64,
@@ -131,6 +134,10 @@ pub struct NavOptions {
     /// Compare the normal of every triangle a split or collapse moves, before and after; flips
     /// are counted in [`Navigator::foldovers`].
     pub check_foldover: bool,
+    /// Reference (prefetch) only the parent of each meta-node in use, not its children too as
+    /// the paper does. With a pool smaller than the children's sum the children's prefetches
+    /// evict one another (see BENCHMARKS.md, "Meta-node trees").
+    pub parent_prefetch_only: bool,
 }
 
 /// The navigator: active nodes and triangles over a [`MetaStore`].
@@ -148,6 +155,9 @@ pub struct Navigator<S: MetaStore> {
     /// Nodes split by force this frame (by id): not collapsed again in the same frame, or a
     /// forced split and the collapse of its unwanted children would alternate.
     forced: std::collections::HashSet<u32>,
+    /// Nodes whose wanted switch missed this frame: a miss is counted once per node and frame,
+    /// however often the worklist comes back to it.
+    missed: std::collections::HashSet<u32>,
     options: NavOptions,
     foldovers: u64,
     worklist: Vec<u32>,
@@ -168,6 +178,7 @@ impl<S: MetaStore> Navigator<S> {
             created: HashMap::new(),
             soup: Vec::new(),
             forced: std::collections::HashSet::new(),
+            missed: std::collections::HashSet::new(),
             options,
             foldovers: 0,
             worklist: Vec::new(),
@@ -242,6 +253,7 @@ impl<S: MetaStore> Navigator<S> {
         let view = View { eye: camera.eye_in_world, kappa: camera.kappa(tolerance_px), planes: camera.frustum_normals() };
         let mut stats = AdaptStats::default();
         self.forced.clear();
+        self.missed.clear();
         self.worklist.clear();
         self.worklist.extend(self.active.keys().rev());
         while let Some(key) = self.worklist.pop() {
@@ -256,7 +268,7 @@ impl<S: MetaStore> Navigator<S> {
                         self.push_around(key);
                         self.push_around(b);
                     }
-                    Outcome::Miss => stats.misses += 1,
+                    Outcome::Miss => stats.misses += self.missed.insert(key) as u64,
                     Outcome::Blocked(blocker) => {
                         stats.blocked += 1;
                         // Force the older-blocking neighbour to split (it may not want to, e.g.
@@ -280,11 +292,12 @@ impl<S: MetaStore> Navigator<S> {
                         stats.collapses += 1;
                         self.push_around(first);
                     }
-                    Outcome::Miss => stats.misses += 1,
+                    Outcome::Miss => stats.misses += self.missed.insert(first) as u64,
                     Outcome::Blocked(_) => stats.blocked += 1,
                 }
             }
         }
+        self.store.end_frame();
         self.rebuild_soup();
         stats.triangles = self.triangle_count() as u64;
         stats.active_nodes = self.active.len() as u64;
@@ -309,7 +322,7 @@ impl<S: MetaStore> Navigator<S> {
                     return Ok(true);
                 }
                 Outcome::Miss => {
-                    stats.misses += 1;
+                    stats.misses += self.missed.insert(key) as u64;
                     return Ok(false);
                 }
                 Outcome::Blocked(Some(b)) if depth > 0 => {
@@ -523,8 +536,10 @@ impl<S: MetaStore> Navigator<S> {
         if e.parent != NONE {
             self.store.reference(e.parent, delta);
         }
-        for c in e.first_child..e.first_child + e.child_count {
-            self.store.reference(c, delta);
+        if !self.options.parent_prefetch_only {
+            for c in e.first_child..e.first_child + e.child_count {
+                self.store.reference(c, delta);
+            }
         }
     }
 
@@ -714,7 +729,15 @@ impl BlockLoader for MetaLoader {
 /// external-memory support).
 pub struct ExtStore {
     pool: BufferPool<MetaLoader>,
+    /// Blocks asked for urgently, held by a reference until a node in them is activated (or for
+    /// [`URGENT_HOLD_FRAMES`]): an urgently loaded block nobody references yet would sit first on
+    /// the free list, and the next load would take its holder before the navigator gets to it.
+    urgent: HashMap<u32, u64>,
+    frame: u64,
 }
+
+/// How long an urgent load is held for the switch that asked for it.
+const URGENT_HOLD_FRAMES: u64 = 4;
 
 impl ExtStore {
     /// A pool of as many holders as `memory_bytes` allows for this file's largest block.
@@ -725,7 +748,7 @@ impl ExtStore {
 
     pub fn with_holders(file: Arc<MetaNodeFile>, holders: usize) -> Result<ExtStore> {
         let loader = MetaLoader { file, pages_read: AtomicU64::new(0) };
-        Ok(ExtStore { pool: BufferPool::new(loader, holders)? })
+        Ok(ExtStore { pool: BufferPool::new(loader, holders)?, urgent: HashMap::new(), frame: 0 })
     }
 
     pub fn pool(&self) -> &BufferPool<MetaLoader> {
@@ -758,7 +781,11 @@ impl MetaStore for ExtStore {
     }
 
     fn use_block(&mut self, meta: u32, delta: i32) -> bool {
-        self.pool.use_block(meta, delta)
+        let ok = self.pool.use_block(meta, delta);
+        if ok && delta > 0 && self.urgent.remove(&meta).is_some() {
+            self.pool.reference(meta, -1); // the usage count holds it now
+        }
+        ok
     }
 
     fn reference(&mut self, meta: u32, delta: i32) {
@@ -766,7 +793,23 @@ impl MetaStore for ExtStore {
     }
 
     fn request_urgent(&mut self, meta: u32, up: bool) {
-        self.pool.request_urgent(meta, if up { Direction::Up } else { Direction::Down });
+        let asked = self.pool.request_urgent(meta, if up { Direction::Up } else { Direction::Down });
+        if asked != crate::pool::Urgent::Refused && !self.urgent.contains_key(&meta) {
+            self.pool.reference(meta, 1);
+            self.urgent.insert(meta, self.frame);
+        }
+    }
+
+    fn end_frame(&mut self) {
+        self.frame += 1;
+        let (pool, frame) = (&self.pool, self.frame);
+        self.urgent.retain(|&meta, &mut asked| {
+            let keep = frame - asked < URGENT_HOLD_FRAMES;
+            if !keep {
+                pool.reference(meta, -1);
+            }
+            keep
+        });
     }
 
     fn pages_read(&self) -> u64 {
@@ -908,7 +951,7 @@ mod tests {
     fn coarsest_and_finest_cuts_match_the_forest() {
         let (_d, f, nodes, tris) = file(12, BlockingOptions { levels_per_node: 3, page_bytes: 512 });
         assert!(f.header().metanodes > 10, "small pages give many meta-nodes");
-        let mut nav = Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true }).unwrap();
+        let mut nav = Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
         let roots = nodes.iter().filter(|v| v.parent == NONE).count();
         assert_eq!(nav.active_nodes(), roots);
         nav.check().unwrap();
@@ -973,7 +1016,7 @@ mod tests {
         let side = 14;
         let (nodes, tris, base, _) = naive_forest(side);
         let (_d, f, _, _) = file(side, BlockingOptions { levels_per_node: 2, page_bytes: 512 });
-        let mut nav = Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true }).unwrap();
+        let mut nav = Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
         let mut seed = 7u64;
         let mut rnd = || {
             seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
@@ -1035,7 +1078,7 @@ mod tests {
             assert_eq!(ext.active_ids(), virt.active_ids());
         }
         // A tiny pool: misses happen, the bookkeeping stays right, nothing in use is evicted.
-        let mut tiny = Navigator::new(&f, ExtStore::with_holders(f.clone(), 16).unwrap(), NavOptions { check_foldover: true }).unwrap();
+        let mut tiny = Navigator::new(&f, ExtStore::with_holders(f.clone(), 16).unwrap(), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
         let mut misses = 0;
         for (k, (cam, tol)) in views.iter().enumerate() {
             let s = tiny.update(cam, *tol).unwrap();
