@@ -734,7 +734,8 @@ fn is_terrain_file(path: &std::path::Path) -> bool {
 /// Whether the file starts with these 8 bytes.
 fn has_magic(path: &std::path::Path, expected: &[u8; 8]) -> bool {
     let mut magic = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic)).is_ok() && &magic == expected
+    std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic)).is_ok()
+        && &magic == expected
 }
 
 /// A window's start from `--eye` and `--look` (clap makes them come together).
@@ -1290,7 +1291,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 NavMode::Ext => {
                     let store = ExtStore::new(meta.clone(), memory_bytes)?;
                     let holders = store.pool().holders();
-                    let nav = Navigator::new(&meta, store, NavOptions { parent_prefetch_only, ..NavOptions::default() })?;
+                    let nav =
+                        Navigator::new(&meta, store, NavOptions { parent_prefetch_only, ..NavOptions::default() })?;
                     let _cap = apply_cap()?;
                     let mut source = NavSource::new(nav, bounds);
                     let name = format!("meta-node trees, ext, {holders} holders of {} B", meta.header().holder_bytes);
@@ -1353,7 +1355,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             let mut options = relief::vdtree::build::BuildOptions::new(memory_bytes, metric.into());
             options.progress = progress(quiet);
-            if !page_bytes.is_power_of_two() || page_bytes < 512 || page_bytes > 1 << 20 {
+            if !page_bytes.is_power_of_two() || !(512..=1 << 20).contains(&page_bytes) {
                 bail!("--page-size must be a power of two from 512 bytes to 1M, got {page_bytes}");
             }
             let blocking = relief::vdtree::metanode::BlockingOptions { levels_per_node, page_bytes: page_bytes as u32 };
@@ -1362,7 +1364,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
                 _ => PathBuf::from("."),
             };
-            let scratch = tempfile::Builder::new().prefix(".relief-vdt.").tempdir_in(&dir).with_context(|| format!("{}: cannot create a scratch directory", dir.display()))?;
+            let scratch = tempfile::Builder::new()
+                .prefix(".relief-vdt.")
+                .tempdir_in(&dir)
+                .with_context(|| format!("{}: cannot create a scratch directory", dir.display()))?;
             let vdt_path = vdt.clone().unwrap_or_else(|| scratch.path().join("forest.vdt"));
             let mut report = relief::vdtree::build::build_vdt_from_mesh(mesh, &vdt_path, &options)?;
             // Ingest as the user waits for it: reading the file too.

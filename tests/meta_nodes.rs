@@ -44,7 +44,7 @@ fn orbit_cameras(f: &MetaNodeFile, frames: usize) -> Vec<Camera> {
 /// Random views around and inside the bounding box.
 fn random_cameras(f: &MetaNodeFile, n: usize, seed: u64) -> Vec<(Camera, f64)> {
     let b = f.header().bounds;
-    let (c, d) = (DVec3::from(b.centre()), b.diagonal());
+    let (c, d) = (b.centre(), b.diagonal());
     let mut s = seed;
     let mut rnd = move || {
         s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
@@ -83,7 +83,8 @@ fn small_memory_build_matches_the_unlimited_build_along_a_path() {
         }
     }
     // In fact the spanned sub-mesh build keeps the global order exactly, so the trees agree.
-    let (va, vb) = (VdtFile::open(&dir.path().join("small.vdt")).unwrap(), VdtFile::open(&dir.path().join("all.vdt")).unwrap());
+    let (va, vb) =
+        (VdtFile::open(&dir.path().join("small.vdt")).unwrap(), VdtFile::open(&dir.path().join("all.vdt")).unwrap());
     assert_eq!(va.nodes(), vb.nodes());
     assert_eq!(va.triangles(), vb.triangles());
 }
@@ -92,7 +93,8 @@ fn small_memory_build_matches_the_unlimited_build_along_a_path() {
 fn random_navigation_on_a_real_mesh_keeps_its_books_without_foldovers() {
     let dir = tempfile::tempdir().unwrap();
     let (_, f) = build(&common::mesh("bunny.off"), 1 << 32, dir.path(), "bunny", BlockingOptions::default());
-    let mut nav = Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
+    let mut nav =
+        Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
     let (mut splits, mut collapses) = (0, 0);
     for (k, (cam, tol)) in random_cameras(&f, 60, 5).iter().enumerate() {
         let s = nav.update(cam, *tol).unwrap();
@@ -155,7 +157,13 @@ fn mesh_build_and_fly_commands() {
     }
     assert!(std::fs::read_dir(dir.path()).unwrap().count() == 1, "the intermediate forest is removed");
     let path = dir.path().join("orbit.json");
-    let o = common::relief().args(["path", "orbit"]).arg(&out).args(["--frames", "6", "--out"]).arg(&path).output().unwrap();
+    let o = common::relief()
+        .args(["path", "orbit"])
+        .arg(&out)
+        .args(["--frames", "6", "--out"])
+        .arg(&path)
+        .output()
+        .unwrap();
     assert!(o.status.success(), "{}", common::stderr_of(&o));
     for mode in ["ext", "virt"] {
         let o = common::relief()
@@ -180,7 +188,10 @@ fn mesh_build_and_fly_commands() {
     std::fs::write(&bad, b"not a meta-node file").unwrap();
     for (args, what) in [
         (vec!["mesh", "fly", bad.to_str().unwrap(), "--path", path.to_str().unwrap()], "magic"),
-        (vec!["mesh", "fly", out.to_str().unwrap(), "--path", path.to_str().unwrap(), "--memory", "8K"], "place holders"),
+        (
+            vec!["mesh", "fly", out.to_str().unwrap(), "--path", path.to_str().unwrap(), "--memory", "8K"],
+            "place holders",
+        ),
         (vec!["mesh", "build", "/nonexistent.off", out.to_str().unwrap(), "--memory", "1M"], "nonexistent"),
     ] {
         let o = common::relief().args(&args).output().unwrap();

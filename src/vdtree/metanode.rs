@@ -167,7 +167,13 @@ pub fn write_metanode_file(forest: &Forest<'_>, options: BlockingOptions, out: &
     let mut entries = Vec::with_capacity(plan.metas.len());
     let mut at = data_offset;
     for m in &plan.metas {
-        entries.push(MntEntry { offset: at, bytes: m.bytes as u32, parent: m.parent, first_child: m.first_child, child_count: m.child_count });
+        entries.push(MntEntry {
+            offset: at,
+            bytes: m.bytes as u32,
+            parent: m.parent,
+            first_child: m.first_child,
+            child_count: m.child_count,
+        });
         at += (m.bytes as u64).div_ceil(page) * page;
     }
     let data_bytes = at - data_offset;
@@ -238,7 +244,10 @@ fn validate_options(o: BlockingOptions) -> Result<()> {
         return Err(Error::InvalidArgument(format!("levels per meta-node must be 1 to 16, got {}", o.levels_per_node)));
     }
     if !o.page_bytes.is_power_of_two() || o.page_bytes < 512 {
-        return Err(Error::InvalidArgument(format!("page size must be a power of two of at least 512 bytes, got {}", o.page_bytes)));
+        return Err(Error::InvalidArgument(format!(
+            "page size must be a power of two of at least 512 bytes, got {}",
+            o.page_bytes
+        )));
     }
     Ok(())
 }
@@ -375,7 +384,9 @@ fn plan(forest: &Forest<'_>, options: BlockingOptions, out: &Path) -> Result<Pla
             for v in level {
                 let node = &nodes[v as usize];
                 let key = node.position.map(f32::to_bits);
-                let cost = NODE_BYTES + if coords.contains(&key) { 0 } else { COORD_BYTES } + TRI_BYTES * node.tri_count as usize;
+                let cost = NODE_BYTES
+                    + if coords.contains(&key) { 0 } else { COORD_BYTES }
+                    + TRI_BYTES * node.tri_count as usize;
                 // Group roots always go in (the grouping sized them to fit), so a meta-node's
                 // children hold exactly the children of its nodes.
                 if depth > 0 && (bytes + cost > page || order.len() - start >= u16::MAX as usize) {
@@ -492,11 +503,16 @@ impl<'a> BlockView<'a> {
         if bytes.len() < BLOCK_HEADER_BYTES {
             return Err(format!("block of {} bytes is shorter than its header", bytes.len()));
         }
-        let count = |k: usize| u32::from_le_bytes([bytes[4 * k], bytes[4 * k + 1], bytes[4 * k + 2], bytes[4 * k + 3]]) as usize;
+        let count = |k: usize| {
+            u32::from_le_bytes([bytes[4 * k], bytes[4 * k + 1], bytes[4 * k + 2], bytes[4 * k + 3]]) as usize
+        };
         let (n, c, t) = (count(0), count(1), count(2));
         let need = BLOCK_HEADER_BYTES + n * NODE_BYTES + c * COORD_BYTES + t * TRI_BYTES;
         if need > bytes.len() || n == 0 {
-            return Err(format!("block counts ({n} nodes, {c} coordinates, {t} triangles) do not fit its {} bytes", bytes.len()));
+            return Err(format!(
+                "block counts ({n} nodes, {c} coordinates, {t} triangles) do not fit its {} bytes",
+                bytes.len()
+            ));
         }
         let body = &bytes[BLOCK_HEADER_BYTES..need];
         let (nb, rest) = body.split_at(n * NODE_BYTES);
@@ -630,7 +646,8 @@ impl MetaNodeFile {
     /// Reads block `m` with `pread` into `buf` (the "Ext" path), resized to the block's words.
     pub fn read_block(&self, m: u32, buf: &mut Vec<u32>) -> Result<()> {
         use std::os::unix::fs::FileExt;
-        let e = self.mnt.get(m as usize).ok_or_else(|| Error::InvalidArgument(format!("meta-node {m} out of range")))?;
+        let e =
+            self.mnt.get(m as usize).ok_or_else(|| Error::InvalidArgument(format!("meta-node {m} out of range")))?;
         buf.clear();
         buf.resize((e.bytes as usize).div_ceil(4), 0);
         let bytes: &mut [u8] = bytemuck::cast_slice_mut(buf.as_mut_slice());
@@ -686,11 +703,15 @@ fn decode_header(path: &Path, b: &[u8], len: u64) -> Result<MetaHeader> {
     if !h.page_bytes.is_power_of_two() || h.page_bytes < 512 {
         return Err(bad(format!("page size {} is not a power of two ≥ 512", h.page_bytes)));
     }
-    if h.metanodes == 0 || h.root_metanodes == 0 || h.root_metanodes > h.metanodes || h.metanodes > u32::MAX as u64 / 2 {
+    if h.metanodes == 0 || h.root_metanodes == 0 || h.root_metanodes > h.metanodes || h.metanodes > u32::MAX as u64 / 2
+    {
         return Err(bad(format!("{} meta-nodes with {} roots", h.metanodes, h.root_metanodes)));
     }
     if h.leaves == 0 || h.leaves > h.nodes || h.nodes >= NONE as u64 || h.base_triangles > h.triangles {
-        return Err(bad(format!("{} leaves, {} nodes, {} triangles ({} base)", h.leaves, h.nodes, h.triangles, h.base_triangles)));
+        return Err(bad(format!(
+            "{} leaves, {} nodes, {} triangles ({} base)",
+            h.leaves, h.nodes, h.triangles, h.base_triangles
+        )));
     }
     let mnt_end = h.metanodes.checked_mul(24).and_then(|x| x.checked_add(h.mnt_offset));
     let base_end = h.base_triangles.checked_mul(12).and_then(|x| x.checked_add(h.base_offset));
@@ -698,7 +719,7 @@ fn decode_header(path: &Path, b: &[u8], len: u64) -> Result<MetaHeader> {
     let ordered = h.mnt_offset == HEADER_BYTES
         && mnt_end == Some(h.base_offset)
         && base_end.is_some_and(|e| e <= h.data_offset)
-        && h.data_offset % h.page_bytes as u64 == 0;
+        && h.data_offset.is_multiple_of(h.page_bytes as u64);
     if !ordered || h.holder_bytes > u32::MAX as u64 {
         return Err(bad("section offsets are inconsistent".into()));
     }
@@ -736,7 +757,13 @@ mod tests {
     /// per internal node (its first leaves) and one base triangle.
     fn line_forest(leaves: u32) -> (Vec<VdtNode>, Vec<VdtTriangle>) {
         let mut nodes: Vec<VdtNode> = (0..leaves)
-            .map(|i| VdtNode { position: [i as f32, 0.0, 0.0], children: [NONE; 2], parent: NONE, leaves: 1, ..Default::default() })
+            .map(|i| VdtNode {
+                position: [i as f32, 0.0, 0.0],
+                children: [NONE; 2],
+                parent: NONE,
+                leaves: 1,
+                ..Default::default()
+            })
             .collect();
         let mut tris = Vec::new();
         let mut level: Vec<u32> = (0..leaves).collect();
@@ -859,9 +886,17 @@ mod tests {
         let g = MetaNodeFile::open(&bad).unwrap();
         assert!(BlockView::parse(g.mapped_block(0), 1).is_err());
         // Options.
-        let e = write_metanode_file(&forest(&nodes, &tris, 64), BlockingOptions { levels_per_node: 0, page_bytes: 4096 }, &path);
+        let e = write_metanode_file(
+            &forest(&nodes, &tris, 64),
+            BlockingOptions { levels_per_node: 0, page_bytes: 4096 },
+            &path,
+        );
         assert!(e.unwrap_err().to_string().contains("levels"));
-        let e = write_metanode_file(&forest(&nodes, &tris, 64), BlockingOptions { levels_per_node: 4, page_bytes: 3000 }, &path);
+        let e = write_metanode_file(
+            &forest(&nodes, &tris, 64),
+            BlockingOptions { levels_per_node: 4, page_bytes: 3000 },
+            &path,
+        );
         assert!(e.unwrap_err().to_string().contains("power of two"));
     }
 }

@@ -90,8 +90,10 @@ impl MetaStore for VirtStore<'_> {
 
 /// Parses a block, turning a malformed one into an error naming the file.
 pub fn parse_block<'b>(file: &MetaNodeFile, meta: u32, bytes: &'b [u8]) -> Result<BlockView<'b>> {
-    BlockView::parse(bytes, file.header().metanodes as u32)
-        .map_err(|problem| Error::BadHeader { path: file.path().to_path_buf(), problem: format!("meta-node {meta}: {problem}") })
+    BlockView::parse(bytes, file.header().metanodes as u32).map_err(|problem| Error::BadHeader {
+        path: file.path().to_path_buf(),
+        problem: format!("meta-node {meta}: {problem}"),
+    })
 }
 
 /// What one frame did.
@@ -186,7 +188,8 @@ impl<S: MetaStore> Navigator<S> {
         for m in 0..roots {
             // Load and pin each root meta-node before the next load can recycle a holder.
             nav.store.load_now(m)?;
-            let root_count = nav.store.with_block(m, |view| view.nodes.iter().filter(|v| v.is_root()).count())?.unwrap_or(0);
+            let root_count =
+                nav.store.with_block(m, |view| view.nodes.iter().filter(|v| v.is_root()).count())?.unwrap_or(0);
             for _ in 0..root_count {
                 nav.store.use_block(m, 1);
             }
@@ -200,7 +203,9 @@ impl<S: MetaStore> Navigator<S> {
                     .collect::<Vec<_>>()
             })?;
             let Some(found) = found else {
-                return Err(Error::InvalidArgument(format!("root meta-node {m} could not be loaded: too little memory")));
+                return Err(Error::InvalidArgument(format!(
+                    "root meta-node {m} could not be loaded: too little memory"
+                )));
             };
             for (node, local, position) in found {
                 nav.activate(node, m, local, position, Vec::new());
@@ -208,11 +213,17 @@ impl<S: MetaStore> Navigator<S> {
         }
         let leaves = file.header().leaves as u32;
         if nav.active.values().map(|a| a.node.leaves as u64).sum::<u64>() != leaves as u64 {
-            return Err(Error::BadHeader { path: file.path().to_path_buf(), problem: "the roots do not cover every leaf".into() });
+            return Err(Error::BadHeader {
+                path: file.path().to_path_buf(),
+                problem: "the roots do not cover every leaf".into(),
+            });
         }
         for t in file.base_triangles() {
             if t.iter().any(|&d| d >= leaves) {
-                return Err(Error::BadHeader { path: file.path().to_path_buf(), problem: "base triangle corner out of range".into() });
+                return Err(Error::BadHeader {
+                    path: file.path().to_path_buf(),
+                    problem: "base triangle corner out of range".into(),
+                });
             }
             nav.add_triangle(*t);
         }
@@ -250,7 +261,8 @@ impl<S: MetaStore> Navigator<S> {
     /// new nodes are tested in turn, so with all data in memory one call reaches the cut the
     /// view asks for.
     pub fn update(&mut self, camera: &Camera, tolerance_px: f64) -> Result<AdaptStats> {
-        let view = View { eye: camera.eye_in_world, kappa: camera.kappa(tolerance_px), planes: camera.frustum_normals() };
+        let view =
+            View { eye: camera.eye_in_world, kappa: camera.kappa(tolerance_px), planes: camera.frustum_normals() };
         let mut stats = AdaptStats::default();
         self.forced.clear();
         self.missed.clear();
@@ -284,7 +296,8 @@ impl<S: MetaStore> Navigator<S> {
             } else if !node.is_root() {
                 let Some((first, second)) = self.sibling_pair(key) else { continue };
                 let position = self.active[&first].position;
-                if self.forced.contains(&node.parent_id) || view.wants(position, node.parent_switch, node.parent_radius) {
+                if self.forced.contains(&node.parent_id) || view.wants(position, node.parent_switch, node.parent_radius)
+                {
                     continue;
                 }
                 match self.try_collapse(first, second)? {
@@ -388,17 +401,26 @@ impl<S: MetaStore> Navigator<S> {
             }
         }
         let mut children = [(MnNode::default(), [0f32; 3]); 2];
-        for k in 0..2 {
+        for (k, child) in children.iter_mut().enumerate() {
             let (m, local) = (pnode.child_meta[k], pnode.child_local[k] as usize);
             let got = self.store.with_block(m, |view| view.nodes.get(local).map(|c| (*c, view.position(c))))?;
             match got {
-                Some(Some(c)) => children[k] = c,
-                _ => return Err(Error::InvalidArgument(format!("meta-node {m}: child {local} of node {} missing", pnode.id))),
+                Some(Some(c)) => *child = c,
+                _ => {
+                    return Err(Error::InvalidArgument(format!(
+                        "meta-node {m}: child {local} of node {} missing",
+                        pnode.id
+                    )))
+                }
             }
         }
-        let created = self.store.with_block(pmeta, |view| view.nodes.get(plocal).map(|v| view.triangles_of(v).to_vec()))?;
+        let created =
+            self.store.with_block(pmeta, |view| view.nodes.get(plocal).map(|v| view.triangles_of(v).to_vec()))?;
         let Some(Some(created)) = created else {
-            return Err(Error::InvalidArgument(format!("meta-node {pmeta} of active node {} is not in memory", pnode.id)));
+            return Err(Error::InvalidArgument(format!(
+                "meta-node {pmeta} of active node {} is not in memory",
+                pnode.id
+            )));
         };
         let [(a, a_pos), (b, b_pos)] = children;
         if a.dfs_lo != pnode.dfs_lo || b.dfs_lo != pnode.dfs_lo + a.leaves || a.leaves + b.leaves != pnode.leaves {
@@ -858,7 +880,8 @@ mod tests {
         let mut current: Vec<[u32; 3]> = tris.clone(); // corners as current node ids
         let mut alive = vec![true; tris.len()];
         let mut died: Vec<Vec<u32>> = vec![Vec::new(); leaves as usize];
-        let len = |a: [f32; 3], b: [f32; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+        let len =
+            |a: [f32; 3], b: [f32; 3]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
         let normal = |p: [[f32; 3]; 3]| {
             let u = [p[1][0] - p[0][0], p[1][1] - p[0][1], p[1][2] - p[0][2]];
             let v = [p[2][0] - p[0][0], p[2][1] - p[0][1], p[2][2] - p[0][2]];
@@ -937,7 +960,8 @@ mod tests {
         let (nodes, tris, base, bounds) = naive_forest(side);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("grid.rmn");
-        let forest = Forest { nodes: &nodes, triangles: &tris, base_triangles: base, leaves: side * side, metric: 0, bounds };
+        let forest =
+            Forest { nodes: &nodes, triangles: &tris, base_triangles: base, leaves: side * side, metric: 0, bounds };
         write_metanode_file(&forest, options, &path).unwrap();
         let f = MetaNodeFile::open(&path).unwrap();
         (dir, f, nodes, tris)
@@ -951,7 +975,9 @@ mod tests {
     fn coarsest_and_finest_cuts_match_the_forest() {
         let (_d, f, nodes, tris) = file(12, BlockingOptions { levels_per_node: 3, page_bytes: 512 });
         assert!(f.header().metanodes > 10, "small pages give many meta-nodes");
-        let mut nav = Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
+        let mut nav =
+            Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() })
+                .unwrap();
         let roots = nodes.iter().filter(|v| v.parent == NONE).count();
         assert_eq!(nav.active_nodes(), roots);
         nav.check().unwrap();
@@ -1016,7 +1042,9 @@ mod tests {
         let side = 14;
         let (nodes, tris, base, _) = naive_forest(side);
         let (_d, f, _, _) = file(side, BlockingOptions { levels_per_node: 2, page_bytes: 512 });
-        let mut nav = Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
+        let mut nav =
+            Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() })
+                .unwrap();
         let mut seed = 7u64;
         let mut rnd = || {
             seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
@@ -1065,7 +1093,8 @@ mod tests {
         // Room for every block, and the I/O thread drained before each frame: no misses, the same
         // cuts as the map.
         let mut virt = Navigator::new(&f, VirtStore::new(&f), NavOptions::default()).unwrap();
-        let mut ext = Navigator::new(&f, ExtStore::with_holders(f.clone(), metas + 4).unwrap(), NavOptions::default()).unwrap();
+        let mut ext =
+            Navigator::new(&f, ExtStore::with_holders(f.clone(), metas + 4).unwrap(), NavOptions::default()).unwrap();
         for (cam, tol) in &views {
             // Converge: a frame that misses retries once its urgent loads are in.
             virt.update(cam, *tol).unwrap();
@@ -1078,7 +1107,12 @@ mod tests {
             assert_eq!(ext.active_ids(), virt.active_ids());
         }
         // A tiny pool: misses happen, the bookkeeping stays right, nothing in use is evicted.
-        let mut tiny = Navigator::new(&f, ExtStore::with_holders(f.clone(), 16).unwrap(), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
+        let mut tiny = Navigator::new(
+            &f,
+            ExtStore::with_holders(f.clone(), 16).unwrap(),
+            NavOptions { check_foldover: true, ..NavOptions::default() },
+        )
+        .unwrap();
         let mut misses = 0;
         for (k, (cam, tol)) in views.iter().enumerate() {
             let s = tiny.update(cam, *tol).unwrap();
