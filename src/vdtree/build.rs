@@ -6,19 +6,24 @@
 //!    then ids; see [`EdgeKey`]) go into a scratch redb database beside the output. The leaves'
 //!    node records go to a scratch node file. This step holds the whole input mesh (the mesh
 //!    readers read whole files); the mesh is dropped before the budgeted build starts.
-//! 2. A batch, in one write transaction: take the smallest edges out of the B-tree as *spanning
-//!    edges*, loading each unloaded end (its state, all its live triangles, the states of their
-//!    other corners) into a [`Region`]; a union–find over the spanning edges' ends counts the
-//!    sub-meshes. Stop before the next load would pass the memory budget; ℓ is the last spanning
-//!    key. Then collapse over all loaded sub-meshes at once in global shortest-first order
-//!    ([`Region::run`]): a collapse is done only while the heap's top is smaller than everything
-//!    left in the B-tree and has both ends loaded, so the order is exactly that of the one-pass
-//!    in-memory algorithm. (The paper collapses up to ℓ; every edge left in the B-tree is > ℓ,
-//!    so going on up to the B-tree's minimum is the same rule, taken as far as it goes, and it
-//!    stops early at a boundary edge that got shorter than ℓ because its loaded end moved.)
-//!    New node records and the triangles that die at each node are appended to scratch files in
-//!    id order; the left-over edges (with their current keys), rejected edges and vertex and
-//!    triangle states go back into redb.
+//! 2. A batch, in one write transaction ([`Region::run`]):
+//!    - Spanning: take the smallest edges out of the B-tree as *spanning edges*, loading each
+//!      unloaded end (its state, all its live triangles, the states of their other corners)
+//!      into a [`Region`]; a union–find over loaded vertices joined by edges tracks the
+//!      sub-meshes. Stop before the next load would pass [`BuildOptions::span_fraction`] of the
+//!      budget; ℓ is the last spanning key, and every edge left in the B-tree is longer.
+//!    - Collapsing, over all loaded sub-meshes at once, in global shortest-first order with one
+//!      priority queue. The paper collapses each sub-mesh up to ℓ, which can break the order:
+//!      a boundary edge whose loaded end moved may become shorter than ℓ while its other end is
+//!      not loaded. Here the next edge is always the smallest pending edge overall (heap or
+//!      B-tree); if an end of it is not loaded, that vertex is loaded on demand (the paper's
+//!      "load the adjacent triangles" for the extreme case), and the batch ends only when such a
+//!      load does not fit in the budget. So the collapses are exactly those of the one-pass
+//!      in-memory algorithm, in the same order, whatever the budget: a batched build writes the
+//!      same bytes as an unlimited one.
+//!    - New node records and the triangles that die at each node are appended to scratch files
+//!      in id order; the left-over edges (with their current keys), rejected edges and vertex
+//!      and triangle states go back into redb.
 //! 3. Repeat until the B-tree is empty. With a budget that holds the whole mesh, the first batch
 //!    loads everything: the "unlimited" build is the same code with one batch.
 //! 4. Assemble: the node file is mapped and the children's `parent` fields patched, then header,
@@ -27,7 +32,8 @@
 //!    which is renamed over it ([`crate::atomic_file`]).
 //!
 //! Every batch makes progress: its first spanning edge is the globally smallest pending edge, so
-//! it is the first the collapse phase examines (it collapses or is rejected). Rejected edges come
+//! it is the first the collapse phase examines (it collapses or is rejected), and loads within a
+//! batch are finite (a loaded vertex stays loaded until it is collapsed). Rejected edges come
 //! back only when a neighbour collapses, as in the in-memory algorithm, so the build terminates.
 //! If the budget cannot hold even the first spanning edge's neighbourhood, the build fails with
 //! [`Error::MemoryBudget`].

@@ -36,9 +36,9 @@
 //! the heap (pending) or in the region's rejected set. An edge between a loaded vertex and a halo
 //! vertex stays in the store's B-tree if pending and unchanged since loading, and is in the region
 //! otherwise. Edges between two unloaded vertices are in the store. So the smallest pending edge
-//! overall is the smaller of the heap's top and the store's B-tree minimum: a collapse is done
-//! only when the heap's top is smaller than the B-tree's minimum and has both ends loaded, which
-//! keeps the global order exact (see [`Region::run`]).
+//! overall is the smaller of the heap's top and the store's B-tree minimum: that edge is
+//! collapsed (or rejected) next, after loading whichever of its ends is not loaded, which keeps
+//! the global order exact (see [`Region::run`]).
 
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BTreeSet, BinaryHeap};
@@ -609,7 +609,7 @@ impl Region {
                 self.boundary += 1; // stays where it is: the B-tree, or the region if rejected
                 continue;
             }
-            self.boundary -= 1; // was c's boundary edge
+            self.boundary = self.boundary.saturating_sub(1); // was c's boundary edge
             self.union(v, c);
             if self.rejected.contains(&pair(v, c)) {
                 continue;
@@ -671,6 +671,9 @@ impl Region {
         let mut spanned = 0u64;
         while let Some(key) = store.pending_min()? {
             let (a, b) = key_ends(key);
+            if self.is_loaded(a) && self.is_loaded(b) {
+                return Err(internal(format!("edge ({a}, {b}) is in the B-tree with both ends loaded")));
+            }
             let limit = if fresh && spanned == 0 { self.budget_bytes } else { span_limit };
             if !self.load(&[a, b], limit, store)? {
                 break;
@@ -796,7 +799,7 @@ impl Region {
                 ring.push(c);
                 let loaded = self.is_loaded(c);
                 if !loaded {
-                    self.boundary -= 1;
+                    self.boundary = self.boundary.saturating_sub(1);
                 }
                 if self.rejected.remove(&pair(x, c)) {
                     self.rejected.remove(&pair(c, x));
