@@ -53,8 +53,8 @@ fn build_lib(name: &str, memory_bytes: u64, metric: VdtMetric) -> Built {
     let mesh = read_mesh(&real_mesh(name)).unwrap_or_else(|e| panic!("{e}"));
     let dir = scratch();
     let path = dir.path().join("out.vdt");
-    let report =
-        build_vdt_from_mesh(mesh.clone(), &path, &BuildOptions::new(memory_bytes, metric)).unwrap_or_else(|e| panic!("{e}"));
+    let report = build_vdt_from_mesh(mesh.clone(), &path, &BuildOptions::new(memory_bytes, metric))
+        .unwrap_or_else(|e| panic!("{e}"));
     eprintln!("{name} {metric:?} {memory_bytes} B: {report:?}");
     Built { mesh, path, report, _dir: dir }
 }
@@ -164,7 +164,8 @@ impl Replay {
     }
 
     fn neighbours(&self, v: u32) -> Vec<u32> {
-        let mut n: Vec<u32> = self.incident.get(&v).into_iter().flatten().flat_map(|&t| self.tris[t]).filter(|&c| c != v).collect();
+        let mut n: Vec<u32> =
+            self.incident.get(&v).into_iter().flatten().flat_map(|&t| self.tris[t]).filter(|&c| c != v).collect();
         n.sort_unstable();
         n.dedup();
         n
@@ -212,7 +213,8 @@ impl Replay {
     }
 
     fn collapse(&mut self, p: u32, s: u32, v: u32) {
-        let ring: Vec<u32> = self.neighbours(s).into_iter().chain(self.neighbours(v)).filter(|&c| c != s && c != v).collect();
+        let ring: Vec<u32> =
+            self.neighbours(s).into_iter().chain(self.neighbours(v)).filter(|&c| c != s && c != v).collect();
         for x in [s, v] {
             for c in self.neighbours(x) {
                 let k = self.key(x, c);
@@ -311,11 +313,18 @@ fn check_well_formed(vdt: &VdtFile, mesh: &Mesh, report: &BuildReport, what: &st
         let id32 = id as u32;
         if node.parent != NONE {
             assert!(node.parent > id32, "{what}: node {id}: parent {}", node.parent);
-            assert!(nodes[node.parent as usize].children.contains(&id32), "{what}: node {id} is not a child of its parent");
+            assert!(
+                nodes[node.parent as usize].children.contains(&id32),
+                "{what}: node {id} is not a child of its parent"
+            );
         }
         if id < n {
             assert_eq!(node.position, mesh.positions[id].map(|c| c as f32), "{what}: leaf {id}");
-            assert_eq!((node.leaves, node.switch, node.radius, node.children), (1, 0.0, 0.0, [NONE, NONE]), "{what}: leaf {id}");
+            assert_eq!(
+                (node.leaves, node.switch, node.radius, node.children),
+                (1, 0.0, 0.0, [NONE, NONE]),
+                "{what}: leaf {id}"
+            );
             continue;
         }
         let [c0, c1] = node.children;
@@ -335,7 +344,11 @@ fn check_well_formed(vdt: &VdtFile, mesh: &Mesh, report: &BuildReport, what: &st
         let mut a = parent[leaf as usize];
         while a != NONE {
             let d = length(p64(a), p64(leaf));
-            assert!(d <= nodes[a as usize].radius as f64 + 1e-12 * diagonal, "{what}: leaf {leaf} is {d} from ancestor {a} (radius {})", nodes[a as usize].radius);
+            assert!(
+                d <= nodes[a as usize].radius as f64 + 1e-12 * diagonal,
+                "{what}: leaf {leaf} is {d} from ancestor {a} (radius {})",
+                nodes[a as usize].radius
+            );
             a = parent[a as usize];
         }
     }
@@ -349,7 +362,9 @@ fn check_well_formed(vdt: &VdtFile, mesh: &Mesh, report: &BuildReport, what: &st
     }
     assert!(count.values().all(|&c| c == 0), "{what}: the triangle section is not the input's triangles, each once");
     // m(t): the deepest (smallest-id) pairwise lowest common ancestor.
-    let m = |c: [u32; 3]| [(c[0], c[1]), (c[1], c[2]), (c[0], c[2])].into_iter().filter_map(|(x, y)| lca(&parent, x, y)).min();
+    let m = |c: [u32; 3]| {
+        [(c[0], c[1]), (c[1], c[2]), (c[0], c[2])].into_iter().filter_map(|(x, y)| lca(&parent, x, y)).min()
+    };
     for id in n as u32..nodes.len() as u32 {
         for t in vdt.node_triangles(id) {
             assert_eq!(m(t.corners), Some(id), "{what}: triangle {:?} listed under node {id}", t.corners);
@@ -399,7 +414,12 @@ fn quadric_metric_batched_equals_unlimited() {
 fn memory_stays_within_the_budget() {
     let r = &armadillo_batched().report;
     assert_eq!(r.memory_budget_bytes, 3 << 20);
-    assert!(r.peak_accounted_bytes <= r.memory_budget_bytes, "accounted {} > budget {}", r.peak_accounted_bytes, r.memory_budget_bytes);
+    assert!(
+        r.peak_accounted_bytes <= r.memory_budget_bytes,
+        "accounted {} > budget {}",
+        r.peak_accounted_bytes,
+        r.memory_budget_bytes
+    );
     assert!(r.redb_cache_bytes <= r.memory_budget_bytes / 8, "{r:?}");
     if r.peak_rss_anon_bytes > 0 {
         assert!(
@@ -418,7 +438,11 @@ fn dragon_in_an_eighth_of_its_size() {
     let small = build_cli("dragon_202k.ply.gz", "1/8", "length");
     assert!(small.report.batches >= 3);
     assert!(small.report.peak_accounted_bytes <= small.report.memory_budget_bytes);
-    assert!(small.report.peak_rss_anon_bytes <= small.report.memory_budget_bytes + RSS_OVERHEAD_BYTES, "{:?}", small.report);
+    assert!(
+        small.report.peak_rss_anon_bytes <= small.report.memory_budget_bytes + RSS_OVERHEAD_BYTES,
+        "{:?}",
+        small.report
+    );
     assert!(std::fs::read(&small.path).unwrap() == std::fs::read(&full.path).unwrap(), "dragon: builds differ");
     let vdt = VdtFile::open(&small.path).unwrap_or_else(|e| panic!("{e}"));
     check_well_formed(&vdt, &small.mesh, &small.report, "dragon in 1/8");
@@ -438,7 +462,8 @@ fn missing_input_is_a_one_line_error() {
     let dir = scratch();
     let missing = dir.path().join("nope.off");
     let out = dir.path().join("out.vdt");
-    let e = relief::vdtree::build::build_vdt(&missing, &out, &BuildOptions::new(1 << 20, VdtMetric::Length)).unwrap_err();
+    let e =
+        relief::vdtree::build::build_vdt(&missing, &out, &BuildOptions::new(1 << 20, VdtMetric::Length)).unwrap_err();
     assert_eq!(e.to_string(), format!("{}: No such file or directory (os error 2)", missing.display()));
     let (ok, stderr) = relief(&["mesh", "build", missing.to_str().unwrap(), out.to_str().unwrap(), "--memory", "1M"]);
     assert!(!ok);
@@ -457,10 +482,7 @@ fn bad_memory_budgets_are_refused() {
     let (ok, stderr) = relief(&["mesh", "build", input.to_str().unwrap(), out.to_str().unwrap(), "--memory", "lots"]);
     assert!(!ok);
     assert_eq!(stderr, "relief: --memory: expected bytes such as 4096, 64K or 1G, got 'lots'\n");
-    let mesh = Mesh {
-        positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
-        triangles: vec![[0, 1, 2]],
-    };
+    let mesh = Mesh { positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], triangles: vec![[0, 1, 2]] };
     let e = build_vdt_from_mesh(mesh, &out, &BuildOptions::new(10_000, VdtMetric::Length)).unwrap_err();
     let msg = e.to_string();
     assert!(msg.starts_with("memory budget of 10000 bytes is too small: at least "), "{msg}");
@@ -493,7 +515,10 @@ fn corrupt_vdt_files_are_one_line_errors() {
     );
     let mut longer = good.clone();
     longer.extend_from_slice(&[0; 7]);
-    assert_eq!(open_err(&longer), format!("{p}: 7 bytes after the triangle section (expected {} bytes in all)", good.len()));
+    assert_eq!(
+        open_err(&longer),
+        format!("{p}: 7 bytes after the triangle section (expected {} bytes in all)", good.len())
+    );
     let mut bad = good.clone();
     bad[8] = 9;
     assert_eq!(open_err(&bad), format!("{p}: VDT version 9 is not supported (this build reads version 1)"));

@@ -55,7 +55,9 @@ use memmap2::MmapMut;
 use redb::{Database, Durability, ReadableDatabase, ReadableTable, ReadableTableMetadata, Table, TableDefinition};
 use serde::Serialize;
 
-use super::simplify::{add_quadrics, collapse_options, cost, plane_quadric, EdgeKey, Quadric, Region, Store, VertexState};
+use super::simplify::{
+    add_quadrics, collapse_options, cost, plane_quadric, EdgeKey, Quadric, Region, Store, VertexState,
+};
 use super::vdt::{write_header, VdtHeader, VdtMetric, HEADER_BYTES, NODE_BYTES};
 use super::{VdtNode, NONE};
 use crate::error::{Error, IoContext, Result};
@@ -105,7 +107,13 @@ pub struct BuildOptions {
 
 impl BuildOptions {
     pub fn new(memory_budget_bytes: u64, metric: VdtMetric) -> Self {
-        BuildOptions { memory_budget_bytes, metric, scratch_dir: None, span_fraction: DEFAULT_SPAN_FRACTION, progress: Progress::hidden() }
+        BuildOptions {
+            memory_budget_bytes,
+            metric,
+            scratch_dir: None,
+            span_fraction: DEFAULT_SPAN_FRACTION,
+            progress: Progress::hidden(),
+        }
     }
 }
 
@@ -184,7 +192,9 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
     let t = mesh.triangles.len();
     // Node ids must stay below NONE: at most 2n − 1 nodes.
     if n == 0 || n as u64 > (NONE as u64) / 2 || t as u64 >= NONE as u64 {
-        return Err(Error::InvalidArgument(format!("a VDT needs 1 to 2^31 vertices and fewer than 2^32 − 1 triangles; this mesh has {n} and {t}")));
+        return Err(Error::InvalidArgument(format!(
+            "a VDT needs 1 to 2^31 vertices and fewer than 2^32 − 1 triangles; this mesh has {n} and {t}"
+        )));
     }
     let bounds = mesh.bounds().ok_or_else(|| Error::InvalidArgument("mesh without vertices".into()))?;
     let out_dir = match output.parent() {
@@ -235,7 +245,8 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
     let nodes = builder.region.next_id() as u64;
     drop(builder);
 
-    let (dying, base, vdt_bytes) = assemble(output, &db, &db_path, out, n as u64, nodes, t as u64, options.metric, bounds)?;
+    let (dying, base, vdt_bytes) =
+        assemble(output, &db, &db_path, out, n as u64, nodes, t as u64, options.metric, bounds)?;
     let peak_rss = sampler.finish();
     Ok(BuildReport {
         metric: options.metric,
@@ -295,7 +306,7 @@ fn encode_vertex(buf: &mut Vec<u8>, state: &VertexState, triangles: &[u32]) {
 }
 
 fn decode_state(bytes: &[u8]) -> Option<VertexState> {
-    if bytes.len() < STATE_BYTES || (bytes.len() - STATE_BYTES) % 4 != 0 {
+    if bytes.len() < STATE_BYTES || !(bytes.len() - STATE_BYTES).is_multiple_of(4) {
         return None;
     }
     let f = |k: usize| f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().unwrap_or_default());
@@ -586,7 +597,10 @@ fn assemble(
 ) -> Result<(u64, u64, u64)> {
     let Output { nodes: node_writer, triangles: tri_writer, dir, nodes_written, triangles_written } = out;
     if nodes_written != nodes {
-        return Err(Error::Scratch { path: dir, problem: format!("{nodes_written} node records written for {nodes} nodes") });
+        return Err(Error::Scratch {
+            path: dir,
+            problem: format!("{nodes_written} node records written for {nodes} nodes"),
+        });
     }
     let node_file = node_writer.into_inner().map_err(|e| Error::io(&dir, e.into_error()))?;
     let mut tri_file = tri_writer.into_inner().map_err(|e| Error::io(&dir, e.into_error()))?;
@@ -594,7 +608,10 @@ fn assemble(
     // else can open it, and the map lives only in this function.
     let mut map = unsafe { MmapMut::map_mut(&node_file) }.at(&dir)?;
     if map.len() as u64 != nodes * NODE_BYTES as u64 {
-        return Err(Error::Scratch { path: dir, problem: format!("node file of {} bytes for {nodes} nodes", map.len()) });
+        return Err(Error::Scratch {
+            path: dir,
+            problem: format!("node file of {} bytes for {nodes} nodes", map.len()),
+        });
     }
     {
         let records: &mut [VdtNode] = bytemuck::cast_slice_mut(&mut map[..]);

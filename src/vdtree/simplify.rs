@@ -100,7 +100,12 @@ pub fn add_quadrics(q: &Quadric, r: &Quadric) -> Quadric {
 /// `xᵀQx` for x = (x, y, z, 1).
 pub fn quadric_error(q: &Quadric, p: [f64; 3]) -> f64 {
     let [x, y, z] = p;
-    q[0] * x * x + 2.0 * q[1] * x * y + 2.0 * q[2] * x * z + 2.0 * q[3] * x + q[4] * y * y + 2.0 * q[5] * y * z
+    q[0] * x * x
+        + 2.0 * q[1] * x * y
+        + 2.0 * q[2] * x * z
+        + 2.0 * q[3] * x
+        + q[4] * y * y
+        + 2.0 * q[5] * y * z
         + 2.0 * q[6] * y
         + q[7] * z * z
         + 2.0 * q[8] * z
@@ -151,7 +156,13 @@ impl VertexState {
 
 /// The collapse options of edge (a, b): the key's metric value and the two directions
 /// `(survivor, victim, value)` in the order they are tried.
-pub fn collapse_options(metric: VdtMetric, a: u32, sa: &VertexState, b: u32, sb: &VertexState) -> (f64, [(u32, u32, f64); 2]) {
+pub fn collapse_options(
+    metric: VdtMetric,
+    a: u32,
+    sa: &VertexState,
+    b: u32,
+    sb: &VertexState,
+) -> (f64, [(u32, u32, f64); 2]) {
     let ((lo, slo), (hi, shi)) = if a < b { ((a, sa), (b, sb)) } else { ((b, sb), (a, sa)) };
     match metric {
         VdtMetric::Length => {
@@ -694,7 +705,7 @@ impl Region {
         let mut steps = 0u64;
         loop {
             steps += 1;
-            if steps % 4096 == 0 {
+            if steps.is_multiple_of(4096) {
                 crate::cancel::check()?;
             }
             let top = match self.heap.peek() {
@@ -778,7 +789,14 @@ impl Region {
     }
 
     /// Collapses `v` onto `s` into a new node.
-    fn collapse(&mut self, s: u32, v: u32, value: f64, store: &mut impl Store, bound: &mut Option<EdgeKey>) -> Result<()> {
+    fn collapse(
+        &mut self,
+        s: u32,
+        v: u32,
+        value: f64,
+        store: &mut impl Store,
+        bound: &mut Option<EdgeKey>,
+    ) -> Result<()> {
         let (Some(ss), Some(vs)) = (self.slot(s), self.slot(v)) else {
             return Err(internal(format!("collapse ({s}, {v}) outside the region")));
         };

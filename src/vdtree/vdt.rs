@@ -115,21 +115,21 @@ impl VdtHeader {
         if version != VERSION {
             return Err(bad(format!("VDT version {version} is not supported (this build reads version {VERSION})")));
         }
-        let metric = VdtMetric::from_code(u32_at(12)).ok_or_else(|| bad(format!("unknown metric code {}", u32_at(12))))?;
+        let metric =
+            VdtMetric::from_code(u32_at(12)).ok_or_else(|| bad(format!("unknown metric code {}", u32_at(12))))?;
         let (leaves, nodes, triangles, base_triangles) = (u64_at(16), u64_at(24), u64_at(32), u64_at(40));
         if nodes < leaves || nodes >= NONE as u64 {
             return Err(bad(format!("corrupt header: {nodes} nodes for {leaves} leaves")));
         }
         if nodes > (2 * leaves).saturating_sub(1) {
-            return Err(bad(format!("corrupt header: {nodes} nodes is more than a binary forest on {leaves} leaves has")));
+            return Err(bad(format!(
+                "corrupt header: {nodes} nodes is more than a binary forest on {leaves} leaves has"
+            )));
         }
         if base_triangles > triangles || triangles >= NONE as u64 {
             return Err(bad(format!("corrupt header: {base_triangles} base triangles of {triangles}")));
         }
-        let bounds = Bounds {
-            min: [f64_at(48), f64_at(56), f64_at(64)],
-            max: [f64_at(72), f64_at(80), f64_at(88)],
-        };
+        let bounds = Bounds { min: [f64_at(48), f64_at(56), f64_at(64)], max: [f64_at(72), f64_at(80), f64_at(88)] };
         if bounds.min.iter().chain(&bounds.max).any(|c| !c.is_finite()) {
             return Err(bad("corrupt header: non-finite bounding box".into()));
         }
@@ -139,7 +139,10 @@ impl VdtHeader {
             return Err(Error::Truncated { path: path.into(), expected, found: file_len });
         }
         if file_len > expected {
-            return Err(bad(format!("{} bytes after the triangle section (expected {expected} bytes in all)", file_len - expected)));
+            return Err(bad(format!(
+                "{} bytes after the triangle section (expected {expected} bytes in all)",
+                file_len - expected
+            )));
         }
         Ok(header)
     }
@@ -223,7 +226,8 @@ impl VdtFile {
         if next_tri != dying {
             return Err(bad(format!("the nodes' triangle ranges cover {next_tri} of {dying} non-base triangles")));
         }
-        if let Some((k, t)) = self.triangles().iter().enumerate().find(|(_, t)| t.corners.iter().any(|&c| c >= leaves)) {
+        if let Some((k, t)) = self.triangles().iter().enumerate().find(|(_, t)| t.corners.iter().any(|&c| c >= leaves))
+        {
             return Err(bad(format!("triangle {k}: corner out of range {:?} ({leaves} leaves)", t.corners)));
         }
         Ok(())
@@ -280,5 +284,48 @@ impl VdtFile {
     /// Nodes without a parent.
     pub fn roots(&self) -> impl Iterator<Item = u32> + '_ {
         self.nodes().iter().enumerate().filter(|(_, n)| n.parent == NONE).map(|(id, _)| id as u32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header() -> VdtHeader {
+        VdtHeader {
+            metric: VdtMetric::Quadric,
+            leaves: 3,
+            nodes: 5,
+            triangles: 1,
+            base_triangles: 0,
+            bounds: Bounds { min: [0.0, -1.0, 2.0], max: [1.0, 0.5, 3.0] },
+        }
+    }
+
+    #[test]
+    fn header_round_trips_and_sizes_the_file() {
+        let h = header();
+        let bytes = h.encode();
+        assert_eq!(&bytes[..8], &MAGIC);
+        assert_eq!(h.file_bytes(), 128 + 5 * 48 + 12);
+        assert_eq!(VdtHeader::decode(Path::new("x.vdt"), &bytes, h.file_bytes()).unwrap(), h);
+    }
+
+    #[test]
+    fn inconsistent_headers_are_refused() {
+        let p = Path::new("x.vdt");
+        let err = |h: VdtHeader| VdtHeader::decode(p, &h.encode(), h.file_bytes()).unwrap_err().to_string();
+        assert_eq!(
+            err(VdtHeader { nodes: 6, ..header() }),
+            "x.vdt: corrupt header: 6 nodes is more than a binary forest on 3 leaves has"
+        );
+        assert_eq!(err(VdtHeader { nodes: 2, ..header() }), "x.vdt: corrupt header: 2 nodes for 3 leaves");
+        assert_eq!(err(VdtHeader { base_triangles: 2, ..header() }), "x.vdt: corrupt header: 2 base triangles of 1");
+        let mut b = header().encode();
+        b[12] = 7;
+        assert_eq!(
+            VdtHeader::decode(p, &b, header().file_bytes()).unwrap_err().to_string(),
+            "x.vdt: unknown metric code 7"
+        );
     }
 }
