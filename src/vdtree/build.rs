@@ -42,7 +42,8 @@
 //! The budget covers: the redb page cache (an eighth of the budget, at least 32 KiB and at most
 //! 256 MiB), the two scratch file buffers (16 KiB each), the union–find and the region
 //! ([`Region::used_bytes`], with head-room for the collapse phase, [`Region::committed_bytes`]).
-//! `peak_accounted_bytes` is the sum of those at their peaks. The sampled peak of anonymous
+//! `peak_accounted_bytes` is the sum of those at their peaks, the cache counted as what it could
+//! hold (its size, or the database file's if that is smaller). The sampled peak of anonymous
 //! resident memory of the build phase (after ingest) is reported beside it; it also holds what no
 //! account sees: the allocator's slack, redb's own bookkeeping, the program itself.
 
@@ -232,6 +233,7 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
         ),
         span_fraction: options.span_fraction,
         batches: 0,
+        max_db_bytes: std::fs::metadata(&db_path).map_or(0, |m| m.len()),
     };
     let bar = options.progress.bar("vdt build", n.saturating_sub(1) as u64, "collapses");
     while builder.batch()? {
@@ -240,7 +242,9 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
     }
     bar.finish_and_clear();
     let stats = builder.region.stats();
-    let peak_accounted = fixed + builder.region.peak_bytes();
+    // The cache cannot hold more than the database's pages: count what it could hold.
+    let db_bytes = builder.max_db_bytes.max(std::fs::metadata(&db_path).map_or(0, |m| m.len()));
+    let peak_accounted = fixed - cache_bytes + cache_bytes.min(db_bytes) + builder.region.peak_bytes();
     let batches = builder.batches;
     let nodes = builder.region.next_id() as u64;
     drop(builder);
@@ -441,6 +445,8 @@ struct Builder<'a> {
     /// [`Region::run`]'s spanning phase stops at this fraction of the region's budget.
     span_fraction: f64,
     batches: u64,
+    /// The scratch database's largest size after a batch, bytes.
+    max_db_bytes: u64,
 }
 
 impl Builder<'_> {
@@ -470,6 +476,7 @@ impl Builder<'_> {
         }
         txn.commit().db(db_path)?;
         self.batches += 1;
+        self.max_db_bytes = self.max_db_bytes.max(std::fs::metadata(db_path).map_or(0, |m| m.len()));
         Ok(more)
     }
 }
