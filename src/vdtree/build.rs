@@ -162,6 +162,7 @@ pub struct BuildReport {
 /// replaced atomically; scratch files are removed whatever happens.
 pub fn build_vdt(input: &Path, output: &Path, options: &BuildOptions) -> Result<BuildReport> {
     let start = Instant::now();
+    check_budget(options.memory_budget_bytes)?;
     let mesh = read_mesh(input)?;
     build_vdt_timed(mesh, output, options, start)
 }
@@ -177,8 +178,8 @@ fn fixed_bytes(budget: u64) -> (u64, u64) {
     (cache, cache + 2 * WRITER_BYTES as u64 + MISC_BYTES)
 }
 
-fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Instant) -> Result<BuildReport> {
-    let budget = options.memory_budget_bytes;
+/// Refuses a budget below the fixed part plus the smallest region.
+fn check_budget(budget: u64) -> Result<()> {
     let (cache_bytes, fixed) = fixed_bytes(budget);
     let smallest = fixed + SMALLEST_REGION_BYTES;
     if budget < smallest {
@@ -189,6 +190,13 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
             ),
         });
     }
+    Ok(())
+}
+
+fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Instant) -> Result<BuildReport> {
+    let budget = options.memory_budget_bytes;
+    check_budget(budget)?;
+    let (cache_bytes, fixed) = fixed_bytes(budget);
     let n = mesh.positions.len();
     let t = mesh.triangles.len();
     // Node ids must stay below NONE: at most 2n − 1 nodes.
