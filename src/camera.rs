@@ -74,6 +74,21 @@ impl Camera {
         self.width_px as f64 / (2.0 * tolerance_px * (self.fov_x_deg.to_radians() / 2.0).tan())
     }
 
+    /// Clip space from eye-relative world space (world − eye), in f32 as the GPU takes it:
+    /// rotation into the view, then a reversed-z perspective (1 at `near_m`, 0 at infinity) with
+    /// no far plane. Eye-relative input keeps precision near the eye on large worlds.
+    pub fn clip_from_rel(&self, near_m: f64) -> glam::Mat4 {
+        let (_, up, forward) = self.basis();
+        let view = glam::camera::rh::view::look_to_mat4(glam::Vec3::ZERO, forward.as_vec3(), up.as_vec3());
+        let aspect = self.width_px as f32 / self.height_px as f32;
+        let proj = glam::camera::rh::proj::directx::perspective_infinite_reverse(
+            self.fov_y_deg().to_radians() as f32,
+            aspect,
+            near_m as f32,
+        );
+        proj * view
+    }
+
     /// Inward unit normals of the frustum planes (see [`PLANES`]); every plane passes through the
     /// eye, so a point is inside iff `normal · (p − eye) ≥ 0` for all of them.
     pub fn frustum_normals(&self) -> [DVec3; PLANES] {
@@ -87,6 +102,65 @@ impl Camera {
             u * ay.cos() + f * ay.sin(),
             -u * ay.cos() + f * ay.sin(),
         ]
+    }
+}
+
+/// Which world axis points up: +z for terrains (x east, y north), commonly +y for scanned
+/// objects and OBJ/glTF files. Fixes the sky's zenith, the sun, the fly camera's horizon and the
+/// orbit's axis.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxis {
+    X,
+    Y,
+    #[default]
+    Z,
+}
+
+impl UpAxis {
+    pub const ALL: [UpAxis; 3] = [UpAxis::X, UpAxis::Y, UpAxis::Z];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            UpAxis::X => "x",
+            UpAxis::Y => "y",
+            UpAxis::Z => "z",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<UpAxis> {
+        UpAxis::ALL.into_iter().find(|a| a.name() == name)
+    }
+
+    /// Index of the axis (0, 1, 2).
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// A right-handed frame `(e1, e2, up)`: the two horizontal axes follow `up` cyclically
+    /// (z up: x, y; y up: z, x; x up: y, z), so for z up e1 is east and e2 north, the terrain's
+    /// own convention.
+    pub fn frame(self) -> (DVec3, DVec3, DVec3) {
+        let axes = [DVec3::X, DVec3::Y, DVec3::Z];
+        let k = self.index();
+        (axes[(k + 1) % 3], axes[(k + 2) % 3], axes[k])
+    }
+
+    pub fn vector(self) -> DVec3 {
+        self.frame().2
+    }
+
+    /// The up axis of a box by default: a flat box (its smallest extent at most half the middle
+    /// one, such as a terrain) stands on its smallest axis; otherwise +y, the convention of the
+    /// Stanford scans and of OBJ/glTF.
+    pub fn guess(extent: [f64; 3]) -> UpAxis {
+        let mut order = [0, 1, 2];
+        order.sort_by(|&a, &b| extent[a].total_cmp(&extent[b]));
+        if extent[order[0]] <= 0.5 * extent[order[1]] {
+            UpAxis::ALL[order[0]]
+        } else {
+            UpAxis::Y
+        }
     }
 }
 
@@ -160,6 +234,20 @@ mod tests {
         let c = cam();
         assert!((c.kappa(1.0) - 100.0).abs() < 1e-9);
         assert!((c.kappa(2.0) - 50.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn up_frames_are_right_handed_and_guesses_follow_the_box() {
+        for a in UpAxis::ALL {
+            let (e1, e2, up) = a.frame();
+            assert_eq!(e1.cross(e2), up, "{a:?}");
+            assert_eq!(UpAxis::from_name(a.name()), Some(a));
+        }
+        assert_eq!(UpAxis::Z.frame(), (DVec3::X, DVec3::Y, DVec3::Z));
+        assert_eq!(UpAxis::guess([50e3, 40e3, 3e3]), UpAxis::Z, "a terrain");
+        assert_eq!(UpAxis::guess([1.0, 0.99, 0.77]), UpAxis::Y, "the bunny's box");
+        assert_eq!(UpAxis::guess([1.0, 0.1, 1.0]), UpAxis::Y, "a flat box on y");
+        assert_eq!(UpAxis::guess([0.1, 1.0, 1.0]), UpAxis::X);
     }
 
     #[test]

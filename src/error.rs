@@ -60,6 +60,9 @@ pub enum Error {
     Plot { path: PathBuf, problem: String },
     #[error("interrupted")]
     Interrupted,
+    /// The buffer pool (`pool`) could not start its I/O thread, or a block loader panicked.
+    #[error("buffer pool: {0}")]
+    Pool(String),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -1,8 +1,10 @@
-//! Flight paths: sequences of camera frames (eye and look point) for flying over a terrain, their
-//! JSON file format, and two generators (a low-altitude straight fly-over and an orbit).
+//! Flight paths: sequences of camera frames (eye and look point) for flying over a terrain or
+//! around a mesh, their JSON file format, and two generators each: a straight fly-over and an orbit
+//! over a terrain (`flyover`, `orbit`) or about a mesh's bounding box (`flyover_box`, `orbit_box`).
 //!
 //! Coordinates are world metres, as everywhere in relief: origin at the grid's south-west corner,
-//! x east (grid x × spacing x), y north (grid y × spacing y), z up (height in metres).
+//! x east (grid x × spacing x), y north (grid y × spacing y), z up (height in metres). A mesh's
+//! coordinates are its file's, with a chosen up axis ([`UpAxis`]).
 //!
 //! The file is a JSON array with one object per frame, written one frame per line so that paths
 //! diff well:
@@ -24,9 +26,10 @@ use glam::{DVec2, DVec3};
 use serde::{Deserialize, Serialize};
 use serde_json::value::RawValue;
 
-use crate::camera::Camera;
+use crate::camera::{Camera, UpAxis};
 use crate::error::{Error, Result};
 use crate::format::TerrainFile;
+use crate::mesh::Bounds;
 
 /// The most frames a generator makes: far more than any fly-through needs, and small enough that a
 /// mistyped count fails with a message instead of exhausting memory.
@@ -48,6 +51,14 @@ pub const FLYOVER_PITCH_DEG: f64 = 15.0;
 pub const ORBIT_RADIUS_OF_HALF_DIAGONAL: f64 = 0.6;
 /// Orbit: default altitude is `z_max` plus this fraction of half the diagonal.
 pub const ORBIT_ALTITUDE_OF_HALF_DIAGONAL: f64 = 0.3;
+
+/// Orbit around a mesh's bounding box: default horizontal radius, as a fraction of the box's
+/// diagonal. Above half, every eye is outside the box; 1.2 also keeps a bounding sphere of the
+/// object (radius half the diagonal) within about 24° of the view axis.
+pub const ORBIT_BOX_RADIUS_OF_DIAGONAL: f64 = 1.2;
+/// Orbit around a box: default eye height above the box's centre (along up), fraction of the
+/// diagonal (looks down about 18°).
+pub const ORBIT_BOX_ALTITUDE_OF_DIAGONAL: f64 = 0.4;
 
 /// Samples per side of the square around the fly-over's clearance disk: bounds the cost per frame
 /// (about 2,000 height reads in the disk) whatever the grid size, 16385² included.
@@ -100,7 +111,8 @@ pub struct PathSummary {
     /// Length of the polyline through the eyes, metres.
     pub length_m: f64,
     /// Least height of an eye above the terrain under it (the highest of the four posts around the
-    /// eye), metres; `None` when no eye is over the grid.
+    /// eye), metres; `None` when no eye is over the grid. For a path around a mesh
+    /// ([`FlightPath::summary_box`]): the least distance from an eye to its bounding box.
     pub min_clearance_m: Option<f64>,
 }
 
@@ -161,14 +173,28 @@ impl FlightPath {
     /// The camera of frame `k`: up is +z, or +y when the view is (nearly) vertical, where +z
     /// would be parallel to the view direction.
     pub fn camera(&self, k: usize, fov_x_deg: f64, width_px: u32, height_px: u32) -> Result<Camera> {
+        self.camera_with_up(k, UpAxis::Z, fov_x_deg, width_px, height_px)
+    }
+
+    /// The camera of frame `k` with `up` as the world's up axis, or the frame's second horizontal
+    /// axis ([`UpAxis::frame`]: +y for z up) when the view is (nearly) along `up`.
+    pub fn camera_with_up(
+        &self,
+        k: usize,
+        up: UpAxis,
+        fov_x_deg: f64,
+        width_px: u32,
+        height_px: u32,
+    ) -> Result<Camera> {
         let frame = self.frames.get(k).ok_or_else(|| {
             Error::InvalidArgument(format!("frame {k} out of range: the path has {} frames", self.frames.len()))
         })?;
         let (eye, look) = (frame.eye_in_world(), frame.look_at_world());
         let forward = (look - eye).normalize_or_zero();
+        let (_, fallback, up) = up.frame();
         // Camera::new rejects |forward × up| < 1e-9; switch well before that, where the basis is
         // still well conditioned.
-        let up = if forward.cross(DVec3::Z).length() < 1e-6 { DVec3::Y } else { DVec3::Z };
+        let up = if forward.cross(up).length() < 1e-6 { fallback } else { up };
         Camera::new(eye, look, up, fov_x_deg, width_px, height_px)
     }
 
@@ -501,6 +527,117 @@ pub fn orbit(terrain: &TerrainFile, opts: &OrbitOptions) -> Result<FlightPath> {
         frames.push(PathFrame { eye: [p.x, p.y, altitude_m], look: [centre.x, centre.y, look_z] });
     }
     Ok(FlightPath { frames })
+}
+
+/// A bounding box seen with `up` as the up axis: horizontal coordinates along `e1`, `e2`.
+struct BoxFrame {
+    e1: DVec3,
+    e2: DVec3,
+    up: DVec3,
+    centre: DVec3,
+    diagonal_m: f64,
+    /// Horizontal corners (e1, e2 coordinates).
+    lo: DVec2,
+    hi: DVec2,
+    /// Highest coordinate along `up`.
+    top: f64,
+}
+
+impl BoxFrame {
+    fn new(bounds: &Bounds, up: UpAxis) -> Result<BoxFrame> {
+        let (e1, e2, upv) = up.frame();
+        let (min, max) = (DVec3::from(bounds.min), DVec3::from(bounds.max));
+        if !(min.is_finite() && max.is_finite() && min.cmple(max).all()) {
+            return Err(Error::InvalidArgument(format!("unusable bounding box {bounds:?}")));
+        }
+        let h = |p: DVec3| DVec2::new(p.dot(e1), p.dot(e2));
+        Ok(BoxFrame {
+            e1,
+            e2,
+            up: upv,
+            centre: bounds.centre(),
+            diagonal_m: bounds.diagonal(),
+            lo: h(min),
+            hi: h(max),
+            top: max.dot(upv),
+        })
+    }
+
+    /// The world point at horizontal position `p` and height `z` along up.
+    fn point(&self, p: DVec2, z: f64) -> DVec3 {
+        self.e1 * p.x + self.e2 * p.y + self.up * z
+    }
+}
+
+/// [`orbit`] around a mesh's bounding box: a circle about the `up` axis through the box's centre,
+/// counter-clockwise seen from above, starting along the frame's first horizontal axis
+/// ([`UpAxis::frame`]; +x for z up), every frame looking at the centre. Radius (horizontal, from
+/// the axis) defaults to [`ORBIT_BOX_RADIUS_OF_DIAGONAL`] of the box's diagonal and the eye height
+/// (coordinate along `up`) to the centre's plus [`ORBIT_BOX_ALTITUDE_OF_DIAGONAL`] of the diagonal,
+/// so by default every eye is outside the box.
+pub fn orbit_box(bounds: &Bounds, up: UpAxis, opts: &OrbitOptions) -> Result<FlightPath> {
+    check_frames(opts.frames)?;
+    check_positive_m("radius", opts.radius_m)?;
+    if let Some(a) = opts.altitude_m {
+        if !a.is_finite() {
+            return Err(Error::InvalidArgument(format!("altitude must be a finite number, got {a}")));
+        }
+    }
+    let b = BoxFrame::new(bounds, up)?;
+    let radius_m = opts.radius_m.unwrap_or(ORBIT_BOX_RADIUS_OF_DIAGONAL * b.diagonal_m);
+    if radius_m <= 0.0 {
+        return Err(Error::InvalidArgument("the bounding box is a single point; pass --radius".into()));
+    }
+    let altitude = opts.altitude_m.unwrap_or(b.centre.dot(b.up) + ORBIT_BOX_ALTITUDE_OF_DIAGONAL * b.diagonal_m);
+    let centre_h = DVec2::new(b.centre.dot(b.e1), b.centre.dot(b.e2));
+    let look = b.centre.to_array();
+    let frames = (0..opts.frames)
+        .map(|k| {
+            let angle = std::f64::consts::TAU * k as f64 / opts.frames as f64;
+            let p = centre_h + radius_m * DVec2::new(angle.cos(), angle.sin());
+            PathFrame { eye: b.point(p, altitude).to_array(), look }
+        })
+        .collect();
+    Ok(FlightPath { frames })
+}
+
+/// [`flyover`] over a mesh's bounding box: straight along the horizontal diagonal (about `up`),
+/// [`FLYOVER_INSET`] inside its corners, at a constant height: the box's top plus the clearance
+/// (default [`FLYOVER_CLEARANCE_OF_DIAGONAL`] of the box's diagonal), so every eye is above the
+/// box. Looks [`FLYOVER_LOOK_AHEAD_OF_DIAGONAL`] of the diagonal ahead, [`FLYOVER_PITCH_DEG`]
+/// below the horizon, as over a terrain.
+pub fn flyover_box(bounds: &Bounds, up: UpAxis, opts: &FlyoverOptions) -> Result<FlightPath> {
+    check_frames(opts.frames)?;
+    check_positive_m("clearance", opts.clearance_m)?;
+    let b = BoxFrame::new(bounds, up)?;
+    let size = b.hi - b.lo;
+    if size.length() <= 0.0 {
+        return Err(Error::InvalidArgument(
+            "the bounding box has no horizontal extent; there is nothing to fly across".into(),
+        ));
+    }
+    let z = b.top + opts.clearance_m.unwrap_or(FLYOVER_CLEARANCE_OF_DIAGONAL * b.diagonal_m);
+    let (start, end) = (b.lo + FLYOVER_INSET * size, b.hi - FLYOVER_INSET * size);
+    let ahead = (end - start).normalize();
+    let look_ahead = FLYOVER_LOOK_AHEAD_OF_DIAGONAL * b.diagonal_m;
+    let drop = look_ahead * FLYOVER_PITCH_DEG.to_radians().tan();
+    let n = opts.frames;
+    let frames = (0..n)
+        .map(|k| {
+            let p = if n == 1 { start } else { start + (end - start) * (k as f64 / (n - 1) as f64) };
+            PathFrame { eye: b.point(p, z).to_array(), look: b.point(p + ahead * look_ahead, z - drop).to_array() }
+        })
+        .collect();
+    Ok(FlightPath { frames })
+}
+
+impl FlightPath {
+    /// Frame count, length, and as `min_clearance_m` the least distance from an eye to `bounds`
+    /// (0 for an eye inside): the [`PathSummary`] of a path around a mesh.
+    pub fn summary_box(&self, bounds: &Bounds) -> PathSummary {
+        let min_clearance_m = self.frames.iter().map(|f| bounds.distance_to(f.eye_in_world())).reduce(f64::min);
+        PathSummary { frames: self.frames.len(), length_m: self.length_m(), min_clearance_m }
+    }
 }
 
 #[cfg(test)]

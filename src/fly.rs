@@ -312,7 +312,8 @@ pub struct FlyReport {
     pub summary: FlySummary,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+/// The median of `v` (mean of the middle two for an even count), 0 when empty.
+pub fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
         return 0.0;
     }

@@ -6,27 +6,30 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 
-use anyhow::bail;
+use anyhow::{bail, Context};
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::{Args, Parser, Subcommand};
 
 use glam::DVec3;
 use relief::camera::Camera;
+use relief::camera::UpAxis;
 use relief::convert::{convert, ConvertOptions};
 use relief::dem::DemFormat;
 use relief::flight::FlightPath;
-use relief::flight::{flyover, orbit, FlyoverOptions, OrbitOptions};
+use relief::flight::{flyover, flyover_box, orbit, orbit_box, FlyoverOptions, OrbitOptions};
 use relief::fly::{bundled_terrain, fly_headless, render_still, save_png, HeadlessOptions};
 use relief::format::TerrainFile;
 use relief::inspect;
 use relief::layout::LayoutKind;
 use relief::layout_faults::{plot_report, run_layouts, terrain_in_layout, LayoutsOptions};
+use relief::mesh_fly::{fly_mesh_headless, MeshFlyOptions, MeshFrameSource, StaticMesh};
 use relief::metric::MetricKind;
 use relief::progress::Progress;
 use relief::refine::RefineOptions;
 use relief::refine_report::{refine_report, ReportOptions};
+use relief::render::MeshStyle;
 use relief::render::{DrawStyle, Gpu};
-use relief::window::{check_display, fly_window, WindowOptions};
+use relief::window::{check_display, fly_window, mesh_window, MeshWindowOptions, WindowOptions, WindowSettings};
 
 #[derive(Parser)]
 #[command(name = "relief", version, about = "Terrain files for out-of-core, view-dependent rendering of height fields")]
@@ -349,18 +352,19 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
-    /// Generate a camera flight path over a terrain and write it as JSON.
+    /// Generate a camera flight path over a terrain or around a mesh and write it as JSON.
     ///
     /// World coordinates are metres with the origin at the grid's south-west corner, x east, y
-    /// north, z up (height in metres). The file is a JSON array with one frame per line:
-    /// [{"eye":[X,Y,Z],"look":[X,Y,Z]}, ...]. Prints the frame count, the path's length and the
-    /// least clearance of an eye above the terrain, in metres.
+    /// north, z up (height in metres); a mesh's are its file's. The file is a JSON array with one
+    /// frame per line: [{"eye":[X,Y,Z],"look":[X,Y,Z]}, ...]. Prints the frame count, the path's
+    /// length and the least clearance of an eye above the terrain (for a mesh: the least distance
+    /// to its bounding box).
     Path {
         #[command(subcommand)]
         kind: PathCommand,
     },
-    /// Triangle meshes for the mesh backends: inspect one, build its view-dependence forest, or
-    /// export a terrain as one.
+    /// Triangle meshes for the mesh backends: inspect or show one, build its meta-node trees and
+    /// fly over them, or export a terrain as one.
     Mesh {
         #[command(subcommand)]
         kind: MeshCommand,
@@ -369,6 +373,51 @@ enum Command {
 
 #[derive(Subcommand)]
 enum MeshCommand {
+    /// Show a whole mesh (OFF, PLY, OBJ, optionally gzip'd; no simplification): in a window, or
+    /// headless along a flight path (see `relief path orbit MESH`).
+    ///
+    /// In a window: drag to look, W/A/S/D/Q/E to move (Shift ×4), wheel for speed, T wireframe,
+    /// F freeze, F12 or P screenshot, R record the path, Esc quit. With --path: renders each frame
+    /// offscreen, optionally to PNGs, and reports per-frame figures.
+    View {
+        /// Mesh file.
+        input: PathBuf,
+        #[command(flatten)]
+        show: MeshShowArgs,
+    },
+    /// Fly over a meta-node file (from `relief mesh build`) with view-dependent refinement: in a
+    /// window, or headless along a path (`relief path orbit FILE`).
+    ///
+    /// Each frame the active nodes are split or collapsed against their switch values at the
+    /// screen-space tolerance (--tolerance, pixels), respecting the implicit dependencies. In ext
+    /// mode meta-nodes come through a buffer pool of --memory bytes with an I/O thread (a switch
+    /// whose meta-node is not in memory is a miss: put off, and an urgent prefetch sent); in virt
+    /// mode straight from the memory-mapped file (the OS pages it in, the navigation waits).
+    /// Per frame: splits + collapses (adapt), triangles, misses (% of wanted switches), pages read,
+    /// adapt/render/frame ms.
+    Fly {
+        /// Meta-node file.
+        file: PathBuf,
+        /// ext: buffer pool + I/O thread; virt: the plain memory map.
+        #[arg(long, value_enum, default_value = "ext")]
+        mode: NavMode,
+        /// ext: the buffer pool's memory, BYTES (K/M/G suffixes) or a fraction A/B of the tree on
+        /// disk (DATA + MNT), e.g. 1/4.
+        #[arg(long, value_name = "BYTES", default_value = "1/4")]
+        memory: String,
+        /// Limit what the flight allocates and pages in after start-up to BYTES (a cgroup v1
+        /// memory limit, both modes), so a tree larger than that cannot stay in memory.
+        #[arg(long, value_name = "BYTES")]
+        cap: Option<String>,
+        /// Evict the file from the page cache first and turn off readahead (a cold start).
+        #[arg(long)]
+        cold: bool,
+        /// ext: prefetch only the parents of the meta-nodes in use, not also their children.
+        #[arg(long)]
+        parent_prefetch_only: bool,
+        #[command(flatten)]
+        show: MeshShowArgs,
+    },
     /// Read a mesh (OFF, PLY ASCII/binary, OBJ; optionally gzip'd) and print its vertices,
     /// triangles, bounds and the degenerate triangles dropped.
     Info {
@@ -385,8 +434,12 @@ enum MeshCommand {
     Build {
         /// Mesh file (OFF, PLY, OBJ; optionally gzip'd).
         input: PathBuf,
-        /// VDT file to write.
+        /// Meta-node file to write (the DATA blocks and the MNT table in one file).
         output: PathBuf,
+        /// Also keep the intermediate view-dependence forest (VDT file) here [default: a
+        /// temporary file beside OUTPUT, removed].
+        #[arg(long, value_name = "VDT")]
+        vdt: Option<PathBuf>,
         /// Memory budget of the build phase: BYTES with an optional binary K/M/G suffix (64M,
         /// 1.5G), or a fraction "A/B" of the mesh's size in memory (24 bytes a vertex plus 12 a
         /// triangle). It covers the redb page cache (1/8 of it), the scratch buffers and the
@@ -398,7 +451,7 @@ enum MeshCommand {
         #[arg(long, value_enum, default_value = "length")]
         metric: VdtMetricArg,
         /// Levels of the binary forest per meta-node (for the meta-node step).
-        #[arg(long, value_name = "L", default_value_t = 4)]
+        #[arg(long, value_name = "L", default_value_t = 8)]
         levels_per_node: u32,
         /// Disk page size of the meta-node file, BYTES (K/M/G suffixes allowed).
         #[arg(long, value_name = "BYTES", default_value = "4096")]
@@ -422,6 +475,159 @@ enum MeshCommand {
         #[arg(long, value_name = "N", default_value_t = 1)]
         step: u32,
     },
+}
+
+/// How to show a mesh source: in a window, or headless along a path (shared by `mesh view` and the
+/// mesh backends).
+#[derive(Args)]
+struct MeshShowArgs {
+    /// Fly headless along this path (see `relief path orbit MESH`) instead of opening a window.
+    #[arg(long, value_name = "PATH.json")]
+    path: Option<PathBuf>,
+    /// Headless: write each frame as DIR/frame_00000.png, ...
+    #[arg(long, value_name = "DIR", requires = "path")]
+    frames_out: Option<PathBuf>,
+    /// Headless: write the per-frame figures and the summary as JSON ({"frames":[…],"summary":{…}}).
+    #[arg(long, value_name = "OUT.json", requires = "path")]
+    stats: Option<PathBuf>,
+    /// Headless: print the per-frame figures and the summary as JSON on stdout.
+    #[arg(long, requires = "path")]
+    json: bool,
+    /// Image or window width, pixels.
+    #[arg(long, value_name = "W", default_value_t = 1280)]
+    width: u32,
+    /// Image or window height, pixels.
+    #[arg(long, value_name = "H", default_value_t = 720)]
+    height: u32,
+    /// Horizontal field of view, degrees.
+    #[arg(long, value_name = "DEG", default_value_t = 60.0)]
+    fov: f64,
+    /// Screen-space error tolerance τ handed to the simplification, pixels.
+    #[arg(long, value_name = "PX", default_value_t = 1.0)]
+    tolerance: f64,
+    /// The mesh's up axis (sky, sun, the window's horizon) [default: as for `relief path`].
+    #[arg(long, value_parser = up_parser())]
+    up: Option<UpAxis>,
+    /// Draw the triangles' edges.
+    #[arg(long)]
+    wireframe: bool,
+    /// Directory for screenshots and recorded paths (window).
+    #[arg(long, value_name = "DIR", default_value = ".")]
+    output_dir: PathBuf,
+    /// Window: start at this eye position "X,Y,Z" (with --look).
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, requires = "look", conflicts_with = "path")]
+    eye: Option<String>,
+    /// Window: start looking at this point "X,Y,Z" (with --eye).
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, requires = "eye")]
+    look: Option<String>,
+    /// Window: close after this many frames (scripted runs).
+    #[arg(long, value_name = "N", conflicts_with = "path")]
+    exit_after_frames: Option<u64>,
+    /// Headless: adapt only, no rendering (times the simplification and its I/O alone).
+    #[arg(long, requires = "path")]
+    no_render: bool,
+    /// Headless: start frames at least MS milliseconds apart, like a display (with --no-render,
+    /// the time a renderer would take, during which prefetching goes on); not counted in frame_ms.
+    #[arg(long, value_name = "MS", default_value_t = 0.0, requires = "path")]
+    pace: f64,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+impl MeshShowArgs {
+    /// Rejects numbers no flight can use, before anything is read.
+    fn check(&self) -> anyhow::Result<()> {
+        if !(self.tolerance > 0.0 && self.tolerance.is_finite()) {
+            bail!("--tolerance: expected a positive number of pixels, got {}", self.tolerance);
+        }
+        if self.width == 0 || self.height == 0 {
+            bail!("--width and --height must be at least 1 pixel");
+        }
+        Ok(())
+    }
+}
+
+/// Shows `source` (read from `file`, adapted by `source_name`) as `show` asks: headless along
+/// `flight` when given, else in a window. The one call a mesh backend's command makes.
+fn show_mesh(
+    source: &mut dyn MeshFrameSource,
+    file: &std::path::Path,
+    source_name: &str,
+    flight: Option<FlightPath>,
+    show: MeshShowArgs,
+) -> anyhow::Result<ExitCode> {
+    show.check()?;
+    let up = show.up.unwrap_or_else(|| UpAxis::guess(source.bounds().extent()));
+    let (Some(flight), Some(path)) = (flight, show.path.as_deref()) else {
+        let options = MeshWindowOptions {
+            window: WindowSettings {
+                width_px: show.width,
+                height_px: show.height,
+                fov_x_deg: show.fov,
+                output_dir: show.output_dir,
+                start: parse_start(show.eye.as_deref(), show.look.as_deref())?,
+                exit_after_frames: show.exit_after_frames,
+            },
+            tolerance_px: show.tolerance,
+            wireframe: show.wireframe,
+            up,
+            source_name: source_name.to_string(),
+        };
+        mesh_window(source, &file.display().to_string(), options)?;
+        return Ok(ExitCode::SUCCESS);
+    };
+    let cameras = (0..flight.frames.len())
+        .map(|k| {
+            flight
+                .camera_with_up(k, up, show.fov, show.width, show.height)
+                .map_err(|e| anyhow::anyhow!("{}: frame {k}: {e}", path.display()))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    if !(show.pace >= 0.0 && show.pace.is_finite()) {
+        bail!("--pace: expected milliseconds ≥ 0, got {}", show.pace);
+    }
+    let options = MeshFlyOptions {
+        pace_ms: show.pace,
+        width_px: show.width,
+        height_px: show.height,
+        tolerance_px: show.tolerance,
+        style: MeshStyle { wireframe: show.wireframe },
+        up,
+        frames_out: show.frames_out,
+        stats_out: show.stats,
+        progress: progress(show.quiet),
+    };
+    let gpu = if show.no_render { None } else { Some(Gpu::headless()?) };
+    let report = fly_mesh_headless(gpu.as_ref(), source, &cameras, &options)?;
+    let s = &report.summary;
+    if show.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "{} ({source_name}): {} frames at {} x {}, frame {:.2} ms, render {:.2} ms (means), {:.0} triangles and {:.1} splits + collapses per frame (mean), {:.2}% misses, {} pages read, {} uploaded ({})",
+            file.display(),
+            s.frames,
+            s.width,
+            s.height,
+            s.frame_ms_mean,
+            s.render_ms_mean,
+            s.triangles_mean,
+            s.adapt_mean,
+            s.miss_pct,
+            s.pages_read,
+            fmt_bytes(s.upload_bytes),
+            s.adapter
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `--mode` of `relief mesh fly`.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum NavMode {
+    Ext,
+    Virt,
 }
 
 /// `--metric` of `relief mesh build`.
@@ -458,7 +664,8 @@ struct MeshInfo {
 enum PathCommand {
     /// A low-altitude straight fly-over along the DEM's diagonal, south-west to north-east (5%
     /// inside the corners), climbing over the highest terrain within 3% of the diagonal around the
-    /// eye, looking ahead 15° below the horizon.
+    /// eye, looking ahead 15° below the horizon. For a mesh: across its bounding box along the
+    /// horizontal diagonal, at a constant height above the box's top.
     Flyover {
         #[command(flatten)]
         common: PathArgs,
@@ -468,7 +675,9 @@ enum PathCommand {
         clearance: Option<f64>,
     },
     /// A circle around the DEM's centre at constant altitude, one full turn counter-clockwise from
-    /// due east, looking at the centre (at the terrain's height there).
+    /// due east, looking at the centre (at the terrain's height there). For a mesh: about the up
+    /// axis through its bounding box's centre [radius 1.2 × the box's diagonal, height 0.4 ×
+    /// the diagonal above the centre], looking at the centre.
     Orbit {
         #[command(flatten)]
         common: PathArgs,
@@ -482,11 +691,23 @@ enum PathCommand {
     },
 }
 
+/// What `relief path` flies over or around.
+enum PathSubject {
+    Terrain(TerrainFile),
+    /// A mesh's bounding box and up axis.
+    Mesh(relief::mesh::Bounds, UpAxis),
+}
+
 /// What every `relief path` generator takes.
 #[derive(Args)]
 struct PathArgs {
-    /// Terrain file (.relief).
+    /// Terrain file (.relief), or a mesh (OFF, PLY, OBJ, optionally gzip'd): then the path is
+    /// about the mesh's bounding box, in the file's units.
     file: PathBuf,
+    /// A mesh's up axis [default: the axis of the box's smallest side when it is at most half the
+    /// next (a terrain), else y (scanned objects, OBJ)]. Terrains are always z up.
+    #[arg(long, value_parser = up_parser())]
+    up: Option<UpAxis>,
     /// Number of frames (at least 1; an orbit spaces them evenly over the turn).
     #[arg(long, value_name = "N")]
     frames: usize,
@@ -496,6 +717,33 @@ struct PathArgs {
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     json: bool,
+}
+
+/// `--up` values.
+fn up_parser() -> impl clap::builder::TypedValueParser<Value = UpAxis> {
+    PossibleValuesParser::new(UpAxis::ALL.map(UpAxis::name))
+        .map(|name| UpAxis::from_name(&name).expect("a possible value"))
+}
+
+/// Whether `path` starts with the terrain file magic (a mesh otherwise; unreadable files are left
+/// to the mesh reader to report).
+fn is_terrain_file(path: &std::path::Path) -> bool {
+    has_magic(path, &relief::format::MAGIC)
+}
+
+/// Whether the file starts with these 8 bytes.
+fn has_magic(path: &std::path::Path, expected: &[u8; 8]) -> bool {
+    let mut magic = [0u8; 8];
+    std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic)).is_ok()
+        && &magic == expected
+}
+
+/// A window's start from `--eye` and `--look` (clap makes them come together).
+fn parse_start(eye: Option<&str>, look: Option<&str>) -> anyhow::Result<Option<(DVec3, DVec3)>> {
+    Ok(match (eye, look) {
+        (Some(e), Some(l)) => Some((parse_vec3("--eye", e)?, parse_vec3("--look", l)?)),
+        _ => None,
+    })
 }
 
 /// `--metric` values: the library's metric names.
@@ -739,19 +987,18 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let terrain = Arc::new(TerrainFile::open(&file)?);
             let Some(path) = path else {
                 let options = WindowOptions {
-                    width_px: width,
-                    height_px: height,
-                    fov_x_deg: fov,
+                    window: WindowSettings {
+                        width_px: width,
+                        height_px: height,
+                        fov_x_deg: fov,
+                        output_dir,
+                        start: parse_start(eye.as_deref(), look.as_deref())?,
+                        exit_after_frames,
+                    },
                     refine,
                     wireframe,
                     threads,
                     sync: refinement.as_deref() == Some("sync"),
-                    output_dir,
-                    start: match (eye, look) {
-                        (Some(e), Some(l)) => Some((parse_vec3("--eye", &e)?, parse_vec3("--look", &l)?)),
-                        _ => None,
-                    },
-                    exit_after_frames,
                     progress: progress(quiet),
                 };
                 fly_window(terrain, options)?;
@@ -934,43 +1181,124 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Path { kind } => {
-            let (file, out, json) = match &kind {
-                PathCommand::Flyover { common, .. } | PathCommand::Orbit { common, .. } => {
-                    (&common.file, &common.out, common.json)
-                }
+            let common = match &kind {
+                PathCommand::Flyover { common, .. } | PathCommand::Orbit { common, .. } => common,
             };
-            let terrain = TerrainFile::open(file)?;
+            let (file, out, json) = (&common.file, &common.out, common.json);
+            // A terrain file by its magic; anything else must be a mesh read_mesh reads.
+            let subject = if is_terrain_file(file) {
+                if common.up.is_some_and(|u| u != UpAxis::Z) {
+                    bail!("--up: a terrain's up axis is z");
+                }
+                PathSubject::Terrain(TerrainFile::open(file)?)
+            } else if has_magic(file, &relief::vdtree::metanode::MAGIC) {
+                let bounds = relief::vdtree::metanode::MetaNodeFile::open(file)?.header().bounds;
+                PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
+            } else {
+                let mesh = relief::mesh::read_mesh(file)?;
+                let bounds = mesh.bounds().ok_or_else(|| anyhow::anyhow!("{}: no vertices", file.display()))?;
+                PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
+            };
             let path = match &kind {
                 PathCommand::Flyover { common, clearance } => {
-                    flyover(&terrain, &FlyoverOptions { frames: common.frames, clearance_m: *clearance })?
+                    let opts = FlyoverOptions { frames: common.frames, clearance_m: *clearance };
+                    match &subject {
+                        PathSubject::Terrain(t) => flyover(t, &opts)?,
+                        PathSubject::Mesh(b, up) => flyover_box(b, *up, &opts)?,
+                    }
                 }
                 PathCommand::Orbit { common, radius, altitude } => {
-                    orbit(&terrain, &OrbitOptions { frames: common.frames, radius_m: *radius, altitude_m: *altitude })?
+                    let opts = OrbitOptions { frames: common.frames, radius_m: *radius, altitude_m: *altitude };
+                    match &subject {
+                        PathSubject::Terrain(t) => orbit(t, &opts)?,
+                        PathSubject::Mesh(b, up) => orbit_box(b, *up, &opts)?,
+                    }
                 }
             };
             path.save(out)?;
-            let s = path.summary(&terrain);
+            // Terrains are in metres; a mesh in its file's units, shown to about 1/1000 of its size.
+            let (s, clearance_what, unit, decimals, up) = match &subject {
+                PathSubject::Terrain(t) => (path.summary(t), "min clearance above terrain", " m", 1, UpAxis::Z),
+                PathSubject::Mesh(b, up) => {
+                    let decimals = (3.0 - b.diagonal().log10().floor()).clamp(0.0, 9.0) as usize;
+                    (path.summary_box(b), "min distance to the mesh's box", "", decimals, *up)
+                }
+            };
             if json {
                 let j = serde_json::json!({
                     "frames": s.frames,
                     "length_m": s.length_m,
                     "min_clearance_m": s.min_clearance_m,
+                    "up": up,
                     "out": out.display().to_string(),
                 });
                 println!("{}", serde_json::to_string_pretty(&j)?);
             } else {
                 let clearance = match s.min_clearance_m {
-                    Some(c) => format!("{c:.1} m"),
+                    Some(c) => format!("{c:.decimals$}{unit}"),
                     None => "n/a (no eye over the grid)".to_string(),
                 };
                 println!(
-                    "{}: {} frames, length {:.1} m, min clearance above terrain {clearance}",
+                    "{}: {} frames, length {:.decimals$}{unit}, {clearance_what} {clearance}, {} up",
                     out.display(),
                     s.frames,
-                    s.length_m
+                    s.length_m,
+                    up.name()
                 );
             }
             Ok(ExitCode::SUCCESS)
+        }
+        Command::Mesh { kind: MeshCommand::View { input, show } } => {
+            show.check()?;
+            // The path first: a bad path file fails before a large mesh is read.
+            let flight = show.path.as_deref().map(FlightPath::load).transpose()?;
+            if flight.is_none() {
+                check_display()?;
+            }
+            let mesh = relief::mesh::read_mesh(&input)?;
+            let mut source = StaticMesh::new(&mesh)?;
+            show_mesh(&mut source, &input, "static", flight, show)
+        }
+        Command::Mesh { kind: MeshCommand::Fly { file, mode, memory, cap, cold, parent_prefetch_only, show } } => {
+            use relief::vdtree::metanode::MetaNodeFile;
+            use relief::vdtree::navigate::{ExtStore, NavOptions, Navigator, VirtStore};
+            use relief::vdtree::source::NavSource;
+            show.check()?;
+            let flight = show.path.as_deref().map(FlightPath::load).transpose()?;
+            if flight.is_none() {
+                check_display()?;
+            }
+            let cap_bytes = cap.as_deref().map(|c| parse_bytes("--cap", c)).transpose()?;
+            if cold {
+                relief::pager::drop_from_page_cache(&file)?;
+            }
+            let meta = std::sync::Arc::new(MetaNodeFile::open(&file)?);
+            if cold {
+                meta.advise_random()?;
+            }
+            let memory_bytes = parse_memory(&memory, meta.tree_bytes())?;
+            let bounds = meta.header().bounds;
+            // The cap covers what the flight does, not start-up (cgroup v1 keeps earlier charges
+            // where they were).
+            let apply_cap = || cap_bytes.map(relief::pager::MemoryCap::apply).transpose();
+            match mode {
+                NavMode::Virt => {
+                    let nav = Navigator::new(&meta, VirtStore::new(&meta), NavOptions::default())?;
+                    let _cap = apply_cap()?;
+                    let mut source = NavSource::new(nav, bounds);
+                    show_mesh(&mut source, &file, "meta-node trees, virt", flight, show)
+                }
+                NavMode::Ext => {
+                    let store = ExtStore::new(meta.clone(), memory_bytes)?;
+                    let holders = store.pool().holders();
+                    let nav =
+                        Navigator::new(&meta, store, NavOptions { parent_prefetch_only, ..NavOptions::default() })?;
+                    let _cap = apply_cap()?;
+                    let mut source = NavSource::new(nav, bounds);
+                    let name = format!("meta-node trees, ext, {holders} holders of {} B", meta.header().holder_bytes);
+                    show_mesh(&mut source, &file, &name, flight, show)
+                }
+            }
         }
         Command::Mesh { kind: MeshCommand::Info { file, json } } => {
             let start = std::time::Instant::now();
@@ -1007,7 +1335,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Mesh {
-            kind: MeshCommand::Build { input, output, memory, metric, levels_per_node, page_size, json, quiet },
+            kind: MeshCommand::Build { input, output, vdt, memory, metric, levels_per_node, page_size, json, quiet },
         } => {
             if levels_per_node == 0 {
                 bail!("--levels-per-node must be at least 1");
@@ -1027,18 +1355,61 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             let mut options = relief::vdtree::build::BuildOptions::new(memory_bytes, metric.into());
             options.progress = progress(quiet);
-            let mut report = relief::vdtree::build::build_vdt_from_mesh(mesh, &output, &options)?;
+            if !page_bytes.is_power_of_two() || !(512..=1 << 20).contains(&page_bytes) {
+                bail!("--page-size must be a power of two from 512 bytes to 1M, got {page_bytes}");
+            }
+            let blocking = relief::vdtree::metanode::BlockingOptions { levels_per_node, page_bytes: page_bytes as u32 };
+            // The forest goes to a temporary file beside the output unless --vdt keeps it.
+            let dir = match output.parent() {
+                Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+                _ => PathBuf::from("."),
+            };
+            let scratch = tempfile::Builder::new()
+                .prefix(".relief-vdt.")
+                .tempdir_in(&dir)
+                .with_context(|| format!("{}: cannot create a scratch directory", dir.display()))?;
+            let vdt_path = vdt.clone().unwrap_or_else(|| scratch.path().join("forest.vdt"));
+            let mut report = relief::vdtree::build::build_vdt_from_mesh(mesh, &vdt_path, &options)?;
             // Ingest as the user waits for it: reading the file too.
             report.ingest_ms = start.elapsed().as_secs_f64() * 1e3 - report.build_ms;
-            // META-NODE STEP (src/vdtree/metanode.rs, chained here later): block the forest in
-            // OUTPUT into meta-nodes of `levels_per_node` levels sized to `page_bytes` pages.
-            let _ = (levels_per_node, page_bytes);
+            let forest_file = relief::vdtree::VdtFile::open(&vdt_path)?;
+            let forest = relief::vdtree::metanode::Forest {
+                nodes: forest_file.nodes(),
+                triangles: forest_file.triangles(),
+                base_triangles: forest_file.base_triangles().len(),
+                leaves: forest_file.leaves() as u32,
+                metric: forest_file.metric() as u32,
+                bounds: forest_file.bounds(),
+            };
+            let meta = relief::vdtree::metanode::write_metanode_file(&forest, blocking, &output)?;
+            drop(forest_file);
+            #[derive(serde::Serialize)]
+            struct MeshBuild<'a> {
+                #[serde(flatten)]
+                vdt: &'a relief::vdtree::build::BuildReport,
+                metanode: &'a relief::vdtree::metanode::MetaNodeReport,
+                levels_per_node: u32,
+                page_bytes: u64,
+            }
             if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
+                let both = MeshBuild { vdt: &report, metanode: &meta, levels_per_node, page_bytes };
+                println!("{}", serde_json::to_string_pretty(&both)?);
             } else {
                 println!(
-                    "{}: {} leaves, {} nodes, {} roots, {} triangles ({} base); {} batches, {:.0} ms build (+{:.0} ms ingest), peak {} accounted, {} anon RSS above the start of the build phase, budget {}",
+                    "{}: {} meta-nodes ({} roots, {:.1} nodes and {:.0}% of a {}-byte page each on average), DATA {}, MNT {}, {:.0} ms",
                     output.display(),
+                    meta.metanodes,
+                    meta.root_metanodes,
+                    meta.nodes_per_metanode_mean,
+                    meta.fill_mean * 100.0,
+                    page_bytes,
+                    fmt_bytes(meta.data_bytes),
+                    fmt_bytes(meta.mnt_bytes),
+                    meta.build_ms
+                );
+                println!(
+                    "{}: {} leaves, {} nodes, {} roots, {} triangles ({} base); {} batches, {:.0} ms build (+{:.0} ms ingest), peak {} accounted, {} anon RSS above the start of the build phase, budget {}",
+                    vdt.as_deref().unwrap_or(std::path::Path::new("forest")).display(),
                     report.leaves,
                     report.nodes,
                     report.roots,

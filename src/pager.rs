@@ -8,9 +8,8 @@
 //!   page to an observer, such as [`LruCache`], a deterministic, machine-independent model of a
 //!   page cache of a given size. With [`NoTrace`] the observer compiles to nothing, so the plain
 //!   path costs what reading the slice costs.
-//! - The **pooled** mode (explicit place holders, second chance, an I/O thread) comes with the
-//!   meta-node backend; it will be another implementation of [`PageObserver`]'s caller side, a
-//!   `RecordSource` that fetches pages it misses.
+//! - The **pooled** mode (explicit place holders, second chance, an I/O thread) is
+//!   [`crate::pool`], generic over what a block is; the meta-node backend uses it.
 
 use std::collections::{HashMap, HashSet};
 use std::path::Path;

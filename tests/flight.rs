@@ -1,17 +1,21 @@
 //! Flight paths on the real DEMs (../shared/data/dem): the fly-over stays above the terrain in a
 //! straight line, the orbit circles the centre, paths survive a save/load round trip bit for bit,
-//! bad files fail with one-line messages, and `relief path` works from the command line.
+//! bad files fail with one-line messages, and `relief path` works from the command line. Paths
+//! about a mesh's bounding box (bunny.off): the orbit stays outside the box looking at its centre,
+//! the fly-over crosses above it.
 
 mod common;
 
-use common::{dem, REAL_DEMS};
+use common::{dem, mesh, REAL_DEMS};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use relief::camera::UpAxis;
 use relief::convert::{convert, ConvertOptions};
-use relief::flight::{flyover, orbit, FlightPath, FlyoverOptions, OrbitOptions, PathFrame};
+use relief::flight::{flyover, flyover_box, orbit, orbit_box, FlightPath, FlyoverOptions, OrbitOptions, PathFrame};
 use relief::format::TerrainFile;
 use relief::layout::LayoutKind;
+use relief::mesh::read_mesh;
 use relief::Error;
 
 /// Converts a real DEM into a terrain file in `dir`.
@@ -354,4 +358,94 @@ fn cli_path_writes_files_that_load_and_fails_in_one_line() {
         format!("relief: {}: No such file or directory (os error 2)\n", missing.display())
     );
     assert!(!zero.exists());
+}
+
+#[test]
+fn mesh_box_orbit_stays_outside_looking_at_the_centre() {
+    let bunny = read_mesh(&mesh("bunny.off")).unwrap();
+    let b = bunny.bounds().unwrap();
+    let centre = b.centre();
+    for up in UpAxis::ALL {
+        let path = orbit_box(&b, up, &OrbitOptions::new(90)).unwrap();
+        assert_eq!(path.frames.len(), 90);
+        let radius = 1.2 * b.diagonal();
+        for (k, f) in path.frames.iter().enumerate() {
+            let eye = f.eye_in_world();
+            assert!(b.distance_to(eye) > 0.1 * b.diagonal(), "{up:?} frame {k}: eye {eye} near or in the box");
+            assert_eq!(f.look_at_world(), centre, "{up:?} frame {k}");
+            // On the circle about the up axis through the centre, at one height.
+            let d = eye - centre;
+            let u = up.vector();
+            assert!(((d - u * d.dot(u)).length() - radius).abs() < 1e-9 * radius, "{up:?} frame {k}");
+            assert!((d.dot(u) - 0.4 * b.diagonal()).abs() < 1e-12, "{up:?} frame {k}");
+        }
+        // Counter-clockwise seen from above: the second eye is a little towards e2.
+        let (e1, e2, _) = up.frame();
+        let (a, c) = (path.frames[0].eye_in_world() - centre, path.frames[1].eye_in_world() - centre);
+        assert!(a.dot(e1) > 0.0 && c.dot(e2) > 0.0, "{up:?}");
+    }
+    let s = orbit_box(&b, UpAxis::Y, &OrbitOptions::new(10)).unwrap().summary_box(&b);
+    assert!(s.min_clearance_m.unwrap() > 0.0);
+    let e = orbit_box(&b, UpAxis::Y, &OrbitOptions { frames: 3, radius_m: Some(-1.0), altitude_m: None }).unwrap_err();
+    assert!(e.to_string().contains("radius"), "{e}");
+}
+
+#[test]
+fn mesh_box_flyover_crosses_above_the_box() {
+    let b = read_mesh(&mesh("bunny.off")).unwrap().bounds().unwrap();
+    let path = flyover_box(&b, UpAxis::Y, &FlyoverOptions::new(50)).unwrap();
+    let top = b.max[1];
+    let (first, last) = (path.frames[0].eye_in_world(), path.frames[49].eye_in_world());
+    for f in &path.frames {
+        assert!(f.eye[1] > top, "eye {:?} not above the box's top {top}", f.eye);
+        assert!(f.look[1] < f.eye[1], "looks down");
+        // Within the box's horizontal extent: it passes across it.
+        for k in [0, 2] {
+            assert!(f.eye[k] > b.min[k] && f.eye[k] < b.max[k], "{:?}", f.eye);
+        }
+    }
+    // From near one horizontal corner to near the opposite one (z and x for y up).
+    assert!(first.x < b.centre().x && first.z < b.centre().z && last.x > b.centre().x && last.z > b.centre().z);
+    assert!(path.length_m() > 0.8 * (b.extent()[0].hypot(b.extent()[2])));
+}
+
+#[test]
+fn cli_path_about_a_mesh_loads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let b = read_mesh(&mesh("bunny.off")).unwrap().bounds().unwrap();
+    for kind in ["orbit", "flyover"] {
+        let out = dir.path().join(format!("{kind}.json"));
+        let o = relief()
+            .args(["path", kind])
+            .arg(mesh("bunny.off"))
+            .args(["--frames", "12", "--json", "--out"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(j["up"], "y", "the bunny stands on y");
+        assert!(j["min_clearance_m"].as_f64().unwrap() > 0.0, "{j}");
+        let path = FlightPath::load(&out).unwrap();
+        assert_eq!(path.frames.len(), 12);
+        if kind == "orbit" {
+            assert!(path
+                .frames
+                .iter()
+                .all(|f| f.look_at_world() == b.centre() && b.distance_to(f.eye_in_world()) > 0.0));
+        }
+    }
+    // --up chooses another axis; a terrain cannot take one but z.
+    let out = dir.path().join("z.json");
+    let o = relief()
+        .args(["path", "orbit"])
+        .arg(mesh("bunny.off"))
+        .args(["--frames", "4", "--up", "z", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stdout).contains("z up"));
+    let f = FlightPath::load(&out).unwrap().frames[0];
+    assert!((f.eye[2] - b.centre().z - 0.4 * b.diagonal()).abs() < 1e-9);
 }

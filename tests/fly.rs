@@ -4,10 +4,9 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::sync::Arc;
 
-use common::dem;
+use common::{dem, relief, stderr_of, window_session};
 use relief::convert::{convert, ConvertOptions};
 use relief::flight::{flyover, FlyoverOptions};
 use relief::fly::{fly_headless, HeadlessOptions};
@@ -18,30 +17,12 @@ use relief::refine::RefineOptions;
 use relief::render::terrain::{FRAME_UNIFORM_BYTES, VERTEX_BYTES};
 use relief::render::DrawStyle;
 
-fn relief() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_relief"));
-    // Mesa warns on stderr without a valid runtime directory; tests assert on stderr.
-    let rt = Path::new(env!("CARGO_TARGET_TMPDIR")).join("xdg-runtime");
-    let _ = std::fs::create_dir_all(&rt);
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        let _ = std::fs::set_permissions(&rt, std::fs::Permissions::from_mode(0o700));
-    }
-    c.env("XDG_RUNTIME_DIR", rt);
-    c
-}
-
 fn zurich(dir: &Path) -> PathBuf {
     let out = dir.join("zurich.relief");
     let mut opts = ConvertOptions::new(LayoutKind::Hz);
     opts.progress = Progress::hidden();
     convert(&dem("zurich_25m_i16.tif"), &out, &opts).unwrap();
     out
-}
-
-fn stderr_of(o: &std::process::Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
 #[test]
@@ -205,62 +186,10 @@ fn fly_without_a_display_explains_how_to_fly_headless() {
 
 /// The window opens, draws frames with the panel and closes cleanly under Xvfb; keys work: R
 /// starts and stops recording a path that loads back, F freezes, T shows the wireframe, P saves a
-/// screenshot, Escape quits. Skipped, with a note,
-/// where xvfb-run or xdotool is not installed (tools/test.sh installs both).
+/// screenshot, Escape quits (see `common::window_session`).
 #[test]
 fn fly_window_runs_under_xvfb_and_keys_record_and_screenshot() {
-    let have = |tool: &str| Command::new(tool).arg("--help").output().is_ok();
-    if !have("xvfb-run") || !have("xdotool") {
-        eprintln!("note: xvfb-run or xdotool not installed; window test skipped");
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let file = zurich(dir.path());
-    let rt = dir.path().join("rt");
-    std::fs::create_dir(&rt).unwrap();
-    std::fs::set_permissions(&rt, std::os::unix::fs::PermissionsExt::from_mode(0o700)).unwrap();
-    let out = dir.path().join("out");
-    std::fs::create_dir(&out).unwrap();
-    // One shell under xvfb-run: start the window, press keys once it is mapped, wait for it.
-    let script = r#"
-        "$RELIEF" fly "$TERRAIN" --width 480 --height 300 --exit-after-frames 100000 --output-dir "$OUT" --quiet &
-        pid=$!
-        for _ in $(seq 100); do w=$(xdotool search --name '^relief' 2>/dev/null | head -1); [ -n "$w" ] && break; sleep 0.1; done
-        [ -n "$w" ] || { echo "no window"; kill $pid; exit 3; }
-        sleep 1
-        # XTEST key events to the focused window (winit ignores synthetic sent events).
-        xdotool windowfocus --sync "$w"; sleep 0.5
-        # Xvfb without a window manager now and then drops a key event: retry until a path exists.
-        for _ in 1 2 3; do
-          xdotool key r; sleep 1.5; xdotool key r; sleep 0.5
-          ls "$OUT"/*.json >/dev/null 2>&1 && break
-        done
-        # Freeze (draws the frozen view's frustum) and wireframe, then a screenshot of that.
-        xdotool key f; xdotool key t; sleep 0.5
-        for _ in 1 2 3; do xdotool key p; sleep 1; ls "$OUT"/*.png >/dev/null 2>&1 && break; done
-        for _ in 1 2 3; do
-          xdotool key Escape
-          for _ in $(seq 30); do kill -0 $pid 2>/dev/null || break; sleep 0.1; done
-          kill -0 $pid 2>/dev/null || break
-        done
-        kill -0 $pid 2>/dev/null && { echo "Escape did not close the window"; kill $pid; exit 4; }
-        wait $pid
-    "#;
-    let o = Command::new("xvfb-run")
-        .args(["-a", "-s", "-screen 0 800x600x24", "sh", "-c", script])
-        .env("RELIEF", env!("CARGO_BIN_EXE_relief"))
-        .env("TERRAIN", &file)
-        .env("OUT", &out)
-        .env("XDG_RUNTIME_DIR", &rt)
-        .output()
-        .unwrap();
-    let e = stderr_of(&o);
-    assert!(o.status.success(), "window flight failed ({:?}): {e}{}", o.status, String::from_utf8_lossy(&o.stdout));
-    assert!(!e.contains("panicked"), "{e}");
-    let files: Vec<PathBuf> = std::fs::read_dir(&out).unwrap().map(|d| d.unwrap().path()).collect();
-    let path = files.iter().find(|p| p.extension().is_some_and(|x| x == "json")).expect("a recorded path");
-    let recorded = relief::flight::FlightPath::load(path).unwrap();
-    assert!(recorded.frames.len() >= 2, "{} frames recorded", recorded.frames.len());
-    let shot = files.iter().find(|p| p.extension().is_some_and(|x| x == "png")).expect("a screenshot");
-    assert_eq!(image::open(shot).unwrap().to_rgba8().dimensions(), (480, 300));
+    window_session(&["fly".as_ref(), file.as_os_str()]);
 }

@@ -7,7 +7,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};
 
-use common::dem;
+use common::{check_golden, compare, dem, gpu};
 use glam::DVec3;
 use relief::camera::Camera;
 use relief::convert::{convert, ConvertOptions};
@@ -20,19 +20,6 @@ use relief::render::offscreen::ProbeTargets;
 use relief::render::shade::{self, ShadeParams};
 use relief::render::terrain::{Probe, FRAME_UNIFORM_BYTES, MORPH_BYTES, VERTEX_BYTES};
 use relief::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
-
-/// One device for the whole test binary (software Vulkan starts slowly), used by one test at a
-/// time.
-fn gpu() -> std::sync::MutexGuard<'static, Gpu> {
-    static GPU: OnceLock<Mutex<Gpu>> = OnceLock::new();
-    GPU.get_or_init(|| {
-        Mutex::new(Gpu::headless().unwrap_or_else(|e| {
-            panic!("{e}\nthe rendering tests need a Vulkan adapter: run `bash tools/test.sh`, which installs lavapipe")
-        }))
-    })
-    .lock()
-    .unwrap_or_else(|p| p.into_inner())
-}
 
 /// Converted terrains by DEM name.
 type Converted = Vec<(String, Arc<TerrainFile>)>;
@@ -235,52 +222,15 @@ fn render_golden(g: &Golden, gpu: &Gpu) -> (image::RgbaImage, StillReport) {
     render_still(gpu, &t, &cam, &options, DrawStyle { wireframe: g.wireframe }, 1, Progress::hidden()).unwrap()
 }
 
-/// Tolerance: lavapipe renders deterministically for one Mesa/LLVM build, but another build (or
-/// a GPU) may round the shading differently by a level or two and break ties at triangle and
-/// wireframe edges differently, which changes isolated pixels a lot. So: the mean absolute
-/// channel difference stays under 1.5 levels of 255, and at most 1% of pixels differ by more
-/// than 24 levels in any channel. A wrong ramp, light, fog, tiling or geometry moves far more.
-fn compare(got: &image::RgbaImage, want: &image::RgbaImage) -> Result<(), String> {
-    if got.dimensions() != want.dimensions() {
-        return Err(format!("size {:?}, golden {:?}", got.dimensions(), want.dimensions()));
-    }
-    let (mut sum, mut big) = (0u64, 0usize);
-    for (a, b) in got.pixels().zip(want.pixels()) {
-        let d = (0..3).map(|c| (a[c] as i32 - b[c] as i32).unsigned_abs()).max().unwrap_or(0);
-        sum += (0..3).map(|c| (a[c] as i32 - b[c] as i32).unsigned_abs() as u64).sum::<u64>();
-        big += (d > 24) as usize;
-    }
-    let pixels = (got.width() * got.height()) as f64;
-    let mean = sum as f64 / (3.0 * pixels);
-    let frac_big = big as f64 / pixels;
-    if mean > 1.5 || frac_big > 0.01 {
-        return Err(format!("mean difference {mean:.3} levels, {:.3}% of pixels off by > 24", 100.0 * frac_big));
-    }
-    Ok(())
-}
-
 #[test]
 fn golden_images_of_real_dems() {
     let gpu = gpu();
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden");
-    let bless = std::env::var_os("RELIEF_BLESS").is_some();
     let mut failures = Vec::new();
     for g in &GOLDEN {
         let (got, report) = render_golden(g, &gpu);
         assert!(report.triangles > 0, "{}: nothing drawn", g.name);
-        let path = dir.join(format!("{}.png", g.name));
-        if bless {
-            got.save(&path).unwrap();
-            continue;
-        }
-        let want = match image::open(&path) {
-            Ok(i) => i.to_rgba8(),
-            Err(e) => panic!("{}: {e} (create the golden images with RELIEF_BLESS=1)", path.display()),
-        };
-        if let Err(e) = compare(&got, &want) {
-            let out = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("{}.actual.png", g.name));
-            got.save(&out).unwrap();
-            failures.push(format!("{}: {e} (actual image: {})", g.name, out.display()));
+        if let Err(e) = check_golden(g.name, &got) {
+            failures.push(e);
         }
     }
     assert!(failures.is_empty(), "golden images differ:\n{}", failures.join("\n"));

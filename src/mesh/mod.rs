@@ -50,6 +50,30 @@ pub struct Bounds {
     pub max: [f64; 3],
 }
 
+impl Bounds {
+    /// Centre of the box.
+    pub fn centre(&self) -> glam::DVec3 {
+        (glam::DVec3::from(self.min) + glam::DVec3::from(self.max)) / 2.0
+    }
+
+    /// Side lengths along x, y, z.
+    pub fn extent(&self) -> [f64; 3] {
+        [0, 1, 2].map(|k| self.max[k] - self.min[k])
+    }
+
+    /// Length of the diagonal.
+    pub fn diagonal(&self) -> f64 {
+        glam::DVec3::from(self.extent()).length()
+    }
+
+    /// Distance from `p` to the box (0 inside or on it).
+    pub fn distance_to(&self, p: glam::DVec3) -> f64 {
+        let lo = glam::DVec3::from(self.min) - p;
+        let hi = p - glam::DVec3::from(self.max);
+        lo.max(hi).max(glam::DVec3::ZERO).length()
+    }
+}
+
 impl Mesh {
     /// The bounding box of all positions (also unreferenced ones); `None` if there are none.
     pub fn bounds(&self) -> Option<Bounds> {

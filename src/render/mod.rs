@@ -1,12 +1,18 @@
-//! Rendering on wgpu: resident heights, strips uploaded per refinement update, offscreen targets
-//! and the CPU reference of the shading. See `ARCHITECTURE.md` ("Rendering").
+//! Rendering on wgpu: resident heights, strips uploaded per refinement update, triangle meshes
+//! uploaded per adaptation, offscreen targets and the CPU references of the shading. See
+//! `ARCHITECTURE.md` ("Rendering").
 
 pub mod gpu;
 pub mod heights;
+pub mod mesh;
+pub mod mesh_shade;
 pub mod offscreen;
+mod pipeline;
 pub mod shade;
 pub mod terrain;
+mod vertex_buffer;
 
 pub use gpu::Gpu;
+pub use mesh::{MeshRenderer, MeshStyle, MeshView};
 pub use offscreen::Offscreen;
 pub use terrain::{DrawStyle, FrameView, RendererOptions, TerrainRenderer};

@@ -27,6 +27,15 @@ pub fn depth_target(gpu: &Gpu, w: u32, h: u32) -> wgpu::Texture {
     target(gpu, "relief depth", w, h, DEPTH_FORMAT)
 }
 
+/// The depth attachment of a frame: cleared to 0, which is infinitely far with reversed z.
+pub(crate) fn depth_clear(view: &wgpu::TextureView) -> wgpu::RenderPassDepthStencilAttachment<'_> {
+    wgpu::RenderPassDepthStencilAttachment {
+        view,
+        depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Store }),
+        stencil_ops: None,
+    }
+}
+
 /// Copies a whole 2-D texture with `bytes_per_texel` into memory, rows tightly packed.
 fn read_texture(gpu: &Gpu, texture: &wgpu::Texture, bytes_per_texel: u32) -> Result<Vec<u8>> {
     let (w, h) = (texture.width(), texture.height());

@@ -108,7 +108,13 @@ pub fn ramp(p: &ShadeParams, z_m: f64) -> DVec3 {
 
 /// Sky colour along an eye-relative direction.
 pub fn sky(dir: DVec3) -> DVec3 {
-    let up = dir.normalize().z.clamp(-1.0, 1.0);
+    sky_about(dir, DVec3::Z)
+}
+
+/// Sky colour along an eye-relative direction with `zenith` (a unit vector) up: the mesh
+/// renderer's sky (`shaders/mesh.wgsl`), the terrain's with `zenith` = +z.
+pub fn sky_about(dir: DVec3, zenith: DVec3) -> DVec3 {
+    let up = dir.normalize().dot(zenith).clamp(-1.0, 1.0);
     let horizon = DVec3::new(0.72, 0.80, 0.88);
     if up < 0.0 {
         return mix3(horizon, DVec3::new(0.45, 0.50, 0.55), (-up * 4.0).min(1.0));

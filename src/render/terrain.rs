@@ -6,7 +6,7 @@
 //! camera. Positions are built in the vertex shader from the heights texture; the fragment shader
 //! shades from the full-resolution heights (CPU reference: `render::shade`).
 
-use glam::{DVec3, Mat4, Vec3};
+use glam::DVec3;
 
 use crate::camera::Camera;
 use crate::error::Result;
@@ -15,7 +15,10 @@ use crate::progress::Progress;
 use crate::refine::{Morph, Strip, StripVertex};
 use crate::render::gpu::Gpu;
 use crate::render::heights::{GpuHeights, HeightTiling};
+use crate::render::offscreen::depth_clear;
+use crate::render::pipeline::{build_pipeline, depth_state, uniform_entry, PipelineSpec};
 use crate::render::shade::ShadeParams;
+use crate::render::vertex_buffer::VertexBuffer;
 
 /// WGSL source of the terrain shaders.
 pub const TERRAIN_WGSL: &str = include_str!("../../shaders/terrain.wgsl");
@@ -91,37 +94,6 @@ impl FrameView {
 pub struct RendererOptions {
     /// Force a heights tile size (posts per side); default: the least memory within the limits.
     pub tile_posts: Option<u32>,
-}
-
-/// A growable GPU vertex buffer.
-struct VertexBuffer {
-    buffer: wgpu::Buffer,
-    capacity: u64,
-    label: &'static str,
-}
-
-impl VertexBuffer {
-    fn new(device: &wgpu::Device, label: &'static str, capacity: u64) -> VertexBuffer {
-        let capacity = capacity.max(256);
-        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size: capacity,
-            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        VertexBuffer { buffer, capacity, label }
-    }
-
-    fn write(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, bytes: &[u8]) {
-        let len = bytes.len() as u64;
-        if len > self.capacity {
-            // Grow by half again so a slowly growing strip does not reallocate every update.
-            *self = VertexBuffer::new(device, self.label, (len + len / 2).next_multiple_of(256));
-        }
-        if len > 0 {
-            queue.write_buffer(&self.buffer, 0, bytes);
-        }
-    }
 }
 
 /// Renders strips of one terrain.
@@ -218,16 +190,7 @@ impl TerrainRenderer {
         let bind_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("relief frame"),
             entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: wgpu::BufferSize::new(FRAME_UNIFORM_BYTES),
-                    },
-                    count: None,
-                },
+                uniform_entry(FRAME_UNIFORM_BYTES),
                 wgpu::BindGroupLayoutEntry {
                     binding: 1,
                     visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
@@ -255,19 +218,14 @@ impl TerrainRenderer {
         });
 
         let depth = |write: bool, compare: wgpu::CompareFunction| {
-            Some(wgpu::DepthStencilState {
-                format: DEPTH_FORMAT,
-                depth_write_enabled: Some(write),
-                depth_compare: Some(compare),
-                stencil: wgpu::StencilState::default(),
-                // Triangles are pushed back (reversed z: towards 0) by their depth slope, so
-                // the wireframe drawn over them wins the depth test even at grazing angles.
-                bias: if write {
-                    wgpu::DepthBiasState { constant: -4, slope_scale: -1.5, clamp: 0.0 }
-                } else {
-                    wgpu::DepthBiasState::default()
-                },
-            })
+            // Triangles are pushed back (reversed z: towards 0) by their depth slope, so the
+            // wireframe drawn over them wins the depth test even at grazing angles.
+            let bias = if write {
+                wgpu::DepthBiasState { constant: -4, slope_scale: -1.5, clamp: 0.0 }
+            } else {
+                wgpu::DepthBiasState::default()
+            };
+            depth_state(write, compare, bias)
         };
         let colour_target =
             [Some(wgpu::ColorTargetState { format: colour_format, blend: None, write_mask: wgpu::ColorWrites::ALL })];
@@ -281,36 +239,10 @@ impl TerrainRenderer {
                         depth_stencil: Option<wgpu::DepthStencilState>,
                         fs: &str,
                         targets: &[Option<wgpu::ColorTargetState>]| {
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(label),
-                layout: Some(&layout),
-                vertex: wgpu::VertexState {
-                    module: &module,
-                    entry_point: Some(vs),
-                    compilation_options: Default::default(),
-                    buffers,
-                },
-                primitive: wgpu::PrimitiveState {
-                    topology,
-                    strip_index_format: None,
-                    front_face: wgpu::FrontFace::Cw,
-                    // Terrain can be seen from below (an eye under a cliff): draw both faces.
-                    cull_mode: None,
-                    unclipped_depth: false,
-                    polygon_mode: wgpu::PolygonMode::Fill,
-                    conservative: false,
-                },
-                depth_stencil,
-                multisample: wgpu::MultisampleState::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &module,
-                    entry_point: Some(fs),
-                    compilation_options: Default::default(),
-                    targets,
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
+            // Strips alternate winding; the shaders do not look at front_facing.
+            let front_face = wgpu::FrontFace::Cw;
+            let spec = PipelineSpec { label, vs, buffers, topology, front_face, depth_stencil, fs, targets };
+            build_pipeline(device, &layout, &module, spec)
         };
         use wgpu::CompareFunction::{Equal, Greater, GreaterEqual};
         use wgpu::PrimitiveTopology::{LineStrip, TriangleList, TriangleStrip};
@@ -464,15 +396,7 @@ impl TerrainRenderer {
 
     /// The frame uniform for `camera` with near plane `near_m`.
     fn frame_uniform(&self, camera: &Camera, near_m: f64, flags: u32) -> FrameUniform {
-        let (_, up, forward) = camera.basis();
-        let view = glam::camera::rh::view::look_to_mat4(Vec3::ZERO, forward.as_vec3(), up.as_vec3());
-        let aspect = camera.width_px as f32 / camera.height_px as f32;
-        let proj = glam::camera::rh::proj::directx::perspective_infinite_reverse(
-            camera.fov_y_deg().to_radians() as f32,
-            aspect,
-            near_m as f32,
-        );
-        let clip_from_rel: Mat4 = proj * view;
+        let clip_from_rel = camera.clip_from_rel(near_m);
         let s = &self.shade;
         let t = self.heights.tiling;
         let e = camera.eye_in_world.as_vec3();
@@ -604,15 +528,6 @@ impl TerrainRenderer {
             pass.set_vertex_buffer(0, self.vertices.buffer.slice(..self.strip_len as u64 * VERTEX_BYTES));
             pass.draw(0..self.strip_len, 0..1);
         }
-    }
-}
-
-fn depth_clear(view: &wgpu::TextureView) -> wgpu::RenderPassDepthStencilAttachment<'_> {
-    wgpu::RenderPassDepthStencilAttachment {
-        view,
-        // Reversed z: 0 is infinitely far.
-        depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Store }),
-        stencil_ops: None,
     }
 }
 

@@ -43,6 +43,10 @@
 
 use bytemuck::{Pod, Zeroable};
 
+pub mod metanode;
+pub mod navigate;
+pub mod source;
+
 pub const NONE: u32 = u32::MAX;
 
 /// One node of the view-dependence forest (48 bytes).

@@ -1,10 +1,14 @@
-//! `relief fly` in a window: winit for the window and input, egui for the panel, the terrain
-//! renderer for the frame, and refinement on its own thread (or synchronous with `--sync`).
+//! Flying in a window: winit for the window and input, egui for the panel, and a [`Scene`] (a
+//! terrain, `terrain.rs`, or a mesh, `mesh.rs`) for what is drawn. This file is what every scene
+//! shares: the fly camera and its keys, the panel's frame, screenshots and path recording.
 //!
-//! Controls: drag with a mouse button to look around; W/S forward and back, A/D sideways, Q/E
-//! down and up, Shift ×4; the scroll wheel changes the speed; F freezes refinement (fly out and
-//! look at the frozen mesh and its culling), T toggles the wireframe, F12 (or P) saves a screenshot, R
-//! starts and stops recording the flight path to JSON, Esc quits.
+//! Shared controls: drag with a mouse button to look around; W/S forward and back, A/D sideways,
+//! Q/E down and up (along the world's up axis), Shift ×4; the scroll wheel changes the speed; F12
+//! (or P) saves a screenshot, R starts and stops recording the flight path to JSON, Esc quits.
+//! Both scenes add F (freeze the level of detail) and T (wireframe).
+
+mod mesh;
+mod terrain;
 
 use std::collections::HashSet;
 use std::path::PathBuf;
@@ -18,42 +22,36 @@ use winit::event_loop::{ActiveEventLoop, EventLoop};
 use winit::keyboard::{KeyCode, PhysicalKey};
 use winit::window::{Window, WindowId};
 
-use crate::camera::Camera;
+use crate::camera::{Camera, UpAxis};
 use crate::error::{Error, Result};
 use crate::flight::{FlightPath, PathFrame};
-use crate::fly::{save_png, RefineJob, StripSource, Update};
-use crate::format::TerrainFile;
-use crate::mem;
-use crate::progress::Progress;
-use crate::refine::RefineOptions;
+use crate::fly::save_png;
 use crate::render::offscreen::Offscreen;
-use crate::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
+use crate::render::Gpu;
 
-/// Settings of an interactive flight.
+pub use mesh::{mesh_window, MeshWindowOptions};
+pub use terrain::{fly_window, WindowOptions};
+
+/// What every window takes.
 #[derive(Clone, Debug)]
-pub struct WindowOptions {
+pub struct WindowSettings {
     pub width_px: u32,
     pub height_px: u32,
     pub fov_x_deg: f64,
-    pub refine: RefineOptions,
-    pub wireframe: bool,
-    pub threads: usize,
-    /// Refine on the render thread before each frame instead of on the refinement thread.
-    pub sync: bool,
     /// Where screenshots and recorded paths go.
     pub output_dir: PathBuf,
-    /// Start here, looking there (world metres); default: south-west of the DEM, above it.
+    /// Start here, looking there (world coordinates); default: the scene's own start.
     pub start: Option<(DVec3, DVec3)>,
     /// Close after this many frames (scripted runs, smoke tests).
     pub exit_after_frames: Option<u64>,
-    pub progress: Progress,
 }
 
 /// The error for a machine without a display, with what to do instead.
 pub fn no_display(reason: &str) -> Error {
     Error::NoDisplay(format!(
         "cannot open a window ({reason}); fly headless instead: \
-         relief path flyover FILE --frames 300 --out path.json && relief fly FILE --path path.json --frames-out frames/"
+         relief path flyover FILE --frames 300 --out path.json && relief fly FILE --path path.json --frames-out frames/ \
+         (a mesh: relief mesh view FILE --path path.json)"
     ))
 }
 
@@ -66,11 +64,36 @@ pub fn check_display() -> Result<()> {
     Ok(())
 }
 
-/// Opens a window and flies over `terrain` until it is closed.
-pub fn fly_window(terrain: Arc<TerrainFile>, options: WindowOptions) -> Result<()> {
+/// What a window draws: a scene renders itself for a camera, the shell does the rest.
+trait Scene {
+    fn title(&self) -> String;
+    /// Builds the renderer for the window's device and colour format; returns the start camera
+    /// (`start` when given: eye and look point).
+    fn start(&mut self, gpu: &Gpu, format: wgpu::TextureFormat, start: Option<(DVec3, DVec3)>) -> Result<FlyCamera>;
+    /// A key pressed that the shell does not handle.
+    fn key(&mut self, code: KeyCode);
+    /// Brings the scene up to date for `camera` (refine or adapt, upload) before it is drawn.
+    fn update(&mut self, gpu: &Gpu, camera: &Camera) -> Result<()>;
+    /// Records the scene seen by `camera` into `colour` and `depth` (both cleared).
+    fn encode(
+        &self,
+        gpu: &Gpu,
+        encoder: &mut wgpu::CommandEncoder,
+        colour: &wgpu::TextureView,
+        depth: &wgpu::TextureView,
+        camera: &Camera,
+    );
+    /// The scene's rows of the panel's figures (name, value), after fps.
+    fn stats(&self) -> Vec<(&'static str, String)>;
+    /// The scene's controls, below the figures.
+    fn controls(&mut self, ui: &mut egui::Ui);
+}
+
+/// Opens a window on `scene` and runs it until it is closed.
+fn run<S: Scene>(scene: S, settings: WindowSettings) -> Result<()> {
     check_display()?;
     let event_loop = EventLoop::new().map_err(|e| no_display(&e.to_string()))?;
-    let mut app = App { terrain, options, state: None, error: None };
+    let mut app = App { scene, settings, shell: None, error: None };
     event_loop.run_app(&mut app).map_err(|e| Error::Gpu(format!("window event loop: {e}")))?;
     match app.error {
         Some(e) => Err(e),
@@ -78,83 +101,65 @@ pub fn fly_window(terrain: Arc<TerrainFile>, options: WindowOptions) -> Result<(
     }
 }
 
-struct App {
-    terrain: Arc<TerrainFile>,
-    options: WindowOptions,
-    state: Option<State>,
+struct App<S> {
+    scene: S,
+    settings: WindowSettings,
+    shell: Option<Shell>,
     error: Option<Error>,
 }
 
-/// A first-person camera: position and heading.
+/// A first-person camera: position and heading about the world's up axis.
 #[derive(Clone, Copy, Debug)]
 struct FlyCamera {
     eye_in_world: DVec3,
-    /// Heading, radians counter-clockwise from east.
+    /// Heading, radians counter-clockwise from the up frame's first horizontal axis (east for z up).
     yaw: f64,
     /// Radians above the horizon.
     pitch: f64,
+    /// World units per second.
     speed_mps: f64,
+    up: UpAxis,
 }
 
 impl FlyCamera {
+    /// At `eye` looking at `look`, moving `speed_mps`.
+    fn looking(eye: DVec3, look: DVec3, speed_mps: f64, up: UpAxis) -> FlyCamera {
+        let (e1, e2, u) = up.frame();
+        let d = look - eye;
+        let (x, y) = (d.dot(e1), d.dot(e2));
+        FlyCamera {
+            eye_in_world: eye,
+            yaw: y.atan2(x),
+            pitch: d.dot(u).atan2(x.hypot(y)).clamp(-1.55, 1.55),
+            speed_mps,
+            up,
+        }
+    }
+
     fn forward(&self) -> DVec3 {
-        DVec3::new(self.yaw.cos() * self.pitch.cos(), self.yaw.sin() * self.pitch.cos(), self.pitch.sin())
+        let (e1, e2, u) = self.up.frame();
+        (e1 * self.yaw.cos() + e2 * self.yaw.sin()) * self.pitch.cos() + u * self.pitch.sin()
+    }
+
+    /// Horizontal, to the right of the heading.
+    fn right(&self) -> DVec3 {
+        let (e1, e2, _) = self.up.frame();
+        e1 * self.yaw.sin() - e2 * self.yaw.cos()
     }
 
     fn camera(&self, fov_x_deg: f64, w: u32, h: u32) -> Result<Camera> {
-        Camera::new(self.eye_in_world, self.eye_in_world + self.forward(), DVec3::Z, fov_x_deg, w.max(1), h.max(1))
-    }
-
-    /// At `eye` looking at `look`.
-    fn looking(eye: DVec3, look: DVec3, terrain: &TerrainFile) -> FlyCamera {
-        let d = look - eye;
-        let mut c = FlyCamera::start(terrain);
-        c.eye_in_world = eye;
-        c.yaw = d.y.atan2(d.x);
-        c.pitch = d.z.atan2(d.x.hypot(d.y)).clamp(-1.55, 1.55);
-        c
-    }
-
-    /// Starts south-west of the DEM, above its highest point, looking at its centre.
-    fn start(terrain: &TerrainFile) -> FlyCamera {
-        let h = terrain.header();
-        let [x0, y0, x1, y1] = h.valid_window;
-        let centre = DVec3::new(
-            0.5 * (x0 + x1 - 1) as f64 * h.spacing_m[0],
-            0.5 * (y0 + y1 - 1) as f64 * h.spacing_m[1],
-            h.z_min.max(0.0),
-        );
-        let size_m = ((x1 - x0) as f64 * h.spacing_m[0]).hypot((y1 - y0) as f64 * h.spacing_m[1]);
-        let eye = centre + DVec3::new(-0.45 * size_m, -0.45 * size_m, 0.0);
-        let eye = DVec3::new(eye.x, eye.y, h.z_max + 0.15 * size_m);
-        let d = centre - eye;
-        FlyCamera { eye_in_world: eye, yaw: d.y.atan2(d.x), pitch: d.z.atan2(d.x.hypot(d.y)), speed_mps: size_m / 30.0 }
+        let eye = self.eye_in_world;
+        Camera::new(eye, eye + self.forward(), self.up.vector(), fov_x_deg, w.max(1), h.max(1))
     }
 }
 
-/// Figures shown in the panel.
-#[derive(Default)]
-struct Stats {
-    frame_ms_avg: f64,
-    refine_ms: f64,
-    /// Bytes sent this frame (strip when new, plus the uniform) and by the last strip upload.
-    upload_bytes: u64,
-    strip_upload_bytes: u64,
-    lag: u64,
-    faults_per_s: f64,
-    major_faults_per_s: f64,
-    last_faults: (u64, u64),
-    last_faults_at: Option<Instant>,
-}
-
-struct State {
+/// The window, its device and the panel, the camera and what the keys have done.
+struct Shell {
     window: Arc<Window>,
     surface: wgpu::Surface<'static>,
     config: wgpu::SurfaceConfiguration,
     gpu: Gpu,
     depth_view: wgpu::TextureView,
-    renderer: TerrainRenderer,
-    source: StripSource,
     egui_ctx: egui::Context,
     egui_state: egui_winit::State,
     egui_renderer: egui_wgpu::Renderer,
@@ -163,24 +168,17 @@ struct State {
     dragging: bool,
     last_cursor: Option<(f64, f64)>,
     last_frame: Instant,
-    tolerance_px: f64,
-    cull: bool,
-    wireframe: bool,
-    frozen: bool,
-    /// The camera the drawn strip was refined for (shown when frozen).
-    refined_camera: Option<Camera>,
+    frame_ms_avg: f64,
     recording: Option<Vec<PathFrame>>,
     message: String,
-    seq: u64,
     frames: u64,
-    stats: Stats,
 }
 
-impl App {
-    fn init(&mut self, event_loop: &ActiveEventLoop) -> Result<State> {
-        let o = &self.options;
+impl<S: Scene> App<S> {
+    fn init(&mut self, event_loop: &ActiveEventLoop) -> Result<Shell> {
+        let o = &self.settings;
         let attrs = Window::default_attributes()
-            .with_title(format!("relief — {}", self.terrain.path().display()))
+            .with_title(self.scene.title())
             .with_inner_size(winit::dpi::PhysicalSize::new(o.width_px, o.height_px));
         let window = Arc::new(event_loop.create_window(attrs).map_err(|e| no_display(&e.to_string()))?);
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
@@ -216,8 +214,7 @@ impl App {
         surface.configure(&gpu.device, &config);
         let depth_view =
             crate::render::offscreen::depth_target(&gpu, config.width, config.height).create_view(&Default::default());
-        let renderer = TerrainRenderer::new(&gpu, &self.terrain, format, RendererOptions::default(), o.progress)?;
-        let source = StripSource::new(self.terrain.clone(), o.threads, !o.sync)?;
+        let cam = self.scene.start(&gpu, format, o.start)?;
         let egui_ctx = egui::Context::default();
         let egui_state = egui_winit::State::new(
             egui_ctx.clone(),
@@ -232,48 +229,37 @@ impl App {
             format,
             egui_wgpu::RendererOptions { depth_stencil_format: None, msaa_samples: 1, ..Default::default() },
         );
-        Ok(State {
+        Ok(Shell {
             window,
             surface,
             config,
             gpu,
             depth_view,
-            renderer,
-            source,
             egui_ctx,
             egui_state,
             egui_renderer,
-            cam: match o.start {
-                Some((eye, look)) => FlyCamera::looking(eye, look, &self.terrain),
-                None => FlyCamera::start(&self.terrain),
-            },
-            frames: 0,
+            cam,
             keys: HashSet::new(),
             dragging: false,
             last_cursor: None,
             last_frame: Instant::now(),
-            tolerance_px: o.refine.tolerance_px,
-            cull: o.refine.cull,
-            wireframe: o.wireframe,
-            frozen: false,
-            refined_camera: None,
+            frame_ms_avg: 0.0,
             recording: None,
             message: String::new(),
-            seq: 0,
-            stats: Stats::default(),
+            frames: 0,
         })
     }
 }
 
-impl ApplicationHandler for App {
+impl<S: Scene> ApplicationHandler for App<S> {
     fn resumed(&mut self, event_loop: &ActiveEventLoop) {
-        if self.state.is_some() {
+        if self.shell.is_some() {
             return;
         }
         match self.init(event_loop) {
             Ok(s) => {
                 s.window.request_redraw();
-                self.state = Some(s);
+                self.shell = Some(s);
             }
             Err(e) => {
                 self.error = Some(e);
@@ -283,7 +269,8 @@ impl ApplicationHandler for App {
     }
 
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
-        let Some(s) = self.state.as_mut() else { return };
+        let Some(s) = self.shell.as_mut() else { return };
+        let scene = &mut self.scene;
         let consumed = s.egui_state.on_window_event(&s.window, &event).consumed;
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
@@ -300,11 +287,9 @@ impl ApplicationHandler for App {
                         if !event.repeat {
                             match code {
                                 KeyCode::Escape => event_loop.exit(),
-                                KeyCode::KeyF => s.frozen = !s.frozen,
-                                KeyCode::KeyT => s.wireframe = !s.wireframe,
-                                KeyCode::F12 | KeyCode::KeyP => s.message = s.screenshot(&self.terrain, &self.options),
-                                KeyCode::KeyR => s.message = s.toggle_recording(&self.options),
-                                _ => {}
+                                KeyCode::F12 | KeyCode::KeyP => s.message = s.screenshot(scene, &self.settings),
+                                KeyCode::KeyR => s.message = s.toggle_recording(&self.settings),
+                                _ => scene.key(code),
                             }
                         }
                         s.keys.insert(code);
@@ -332,16 +317,16 @@ impl ApplicationHandler for App {
                     MouseScrollDelta::LineDelta(_, y) => y as f64,
                     MouseScrollDelta::PixelDelta(p) => p.y / 40.0,
                 };
-                s.cam.speed_mps = (s.cam.speed_mps * 1.25f64.powf(ticks)).clamp(0.01, 1e7);
+                s.cam.speed_mps = (s.cam.speed_mps * 1.25f64.powf(ticks)).clamp(1e-6, 1e7);
             }
             WindowEvent::RedrawRequested => {
-                if let Err(e) = s.frame(&self.terrain, &self.options) {
+                if let Err(e) = s.frame(scene, &self.settings) {
                     self.error = Some(e);
                     event_loop.exit();
                     return;
                 }
                 s.frames += 1;
-                if self.options.exit_after_frames.is_some_and(|n| s.frames >= n) {
+                if self.settings.exit_after_frames.is_some_and(|n| s.frames >= n) {
                     event_loop.exit();
                     return;
                 }
@@ -352,20 +337,18 @@ impl ApplicationHandler for App {
     }
 }
 
-impl State {
-    fn camera(&self, o: &WindowOptions) -> Result<Camera> {
+impl Shell {
+    fn camera(&self, o: &WindowSettings) -> Result<Camera> {
         self.cam.camera(o.fov_x_deg, self.config.width, self.config.height)
     }
 
-    /// Draws the current strip (frozen or not) without the panel into an image file.
-    fn screenshot(&mut self, terrain: &TerrainFile, o: &WindowOptions) -> String {
+    /// Draws the scene as it stands (no panel, no update) into an image file.
+    fn screenshot(&mut self, scene: &impl Scene, o: &WindowSettings) -> String {
         let go = || -> Result<PathBuf> {
             let cam = self.camera(o)?;
             let target = Offscreen::with_format(&self.gpu, cam.width_px, cam.height_px, self.config.format)?;
             let mut enc = self.gpu.device.create_command_encoder(&Default::default());
-            let view = FrameView::new(terrain, cam);
-            let style = DrawStyle { wireframe: self.wireframe };
-            self.renderer.encode(&self.gpu, &mut enc, &target.colour_view, &target.depth_view, &view, style);
+            scene.encode(&self.gpu, &mut enc, &target.colour_view, &target.depth_view, &cam);
             self.gpu.queue.submit([enc.finish()]);
             let image = target.read_rgba(&self.gpu)?;
             let path = o.output_dir.join(format!("relief-{}.png", timestamp()));
@@ -378,7 +361,7 @@ impl State {
         }
     }
 
-    fn toggle_recording(&mut self, o: &WindowOptions) -> String {
+    fn toggle_recording(&mut self, o: &WindowSettings) -> String {
         match self.recording.take() {
             None => {
                 self.recording = Some(Vec::new());
@@ -396,43 +379,17 @@ impl State {
         }
     }
 
-    fn frame(&mut self, terrain: &TerrainFile, o: &WindowOptions) -> Result<()> {
+    fn frame(&mut self, scene: &mut impl Scene, o: &WindowSettings) -> Result<()> {
         let now = Instant::now();
         let dt = (now - self.last_frame).as_secs_f64().min(0.25);
         self.last_frame = now;
-        self.stats.frame_ms_avg =
-            if self.stats.frame_ms_avg == 0.0 { dt * 1e3 } else { 0.9 * self.stats.frame_ms_avg + 0.1 * dt * 1e3 };
+        self.frame_ms_avg = if self.frame_ms_avg == 0.0 { dt * 1e3 } else { 0.9 * self.frame_ms_avg + 0.1 * dt * 1e3 };
         self.fly(dt);
         let cam = self.camera(o)?;
         if let Some(rec) = &mut self.recording {
             rec.push(PathFrame { eye: cam.eye_in_world.to_array(), look: cam.look_at_world.to_array() });
         }
-        // Frozen: outline the view the drawn strip was refined (and culled) for.
-        let outline = match (self.frozen, self.refined_camera) {
-            (true, Some(c)) => {
-                let [ex, ey] = terrain.header().extent_m();
-                c.frustum_outline(0.3 * ex.max(ey)).to_vec()
-            }
-            _ => Vec::new(),
-        };
-        self.renderer.set_overlay_lines(&self.gpu, &outline);
-        if !self.frozen {
-            self.seq += 1;
-            let options = RefineOptions { tolerance_px: self.tolerance_px, cull: self.cull, ..o.refine };
-            let job = RefineJob { camera: cam, options, seq: self.seq };
-            let first = self.refined_camera.is_none();
-            let u: Update = self.source.update(&self.gpu, &mut self.renderer, job, first);
-            self.stats.upload_bytes = u.upload_bytes + crate::render::terrain::FRAME_UNIFORM_BYTES;
-            if u.uploaded {
-                self.stats.refine_ms = u.refine_ms.unwrap_or(0.0);
-                self.stats.strip_upload_bytes = u.upload_bytes;
-                self.stats.lag = u.lag;
-                self.refined_camera = Some(cam);
-            }
-        } else {
-            self.stats.upload_bytes = crate::render::terrain::FRAME_UNIFORM_BYTES;
-        }
-        self.sample_faults(now);
+        scene.update(&self.gpu, &cam)?;
 
         let frame = match self.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(f) | wgpu::CurrentSurfaceTexture::Suboptimal(f) => f,
@@ -444,10 +401,8 @@ impl State {
         };
         let view = frame.texture.create_view(&Default::default());
         let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
-        let style = DrawStyle { wireframe: self.wireframe };
-        let frame_view = FrameView::new(terrain, cam);
-        self.renderer.encode(&self.gpu, &mut encoder, &view, &self.depth_view, &frame_view, style);
-        self.draw_panel(&mut encoder, &view, o);
+        scene.encode(&self.gpu, &mut encoder, &view, &self.depth_view, &cam);
+        self.draw_panel(&mut encoder, &view, scene);
         self.gpu.queue.submit([encoder.finish()]);
         self.window.pre_present_notify();
         self.gpu.queue.present(frame);
@@ -455,44 +410,25 @@ impl State {
     }
 
     fn fly(&mut self, dt: f64) {
-        let f = self.cam.forward();
-        let right = DVec3::new(self.cam.yaw.sin(), -self.cam.yaw.cos(), 0.0);
+        let (f, right, up) = (self.cam.forward(), self.cam.right(), self.cam.up.vector());
         let mut v = DVec3::ZERO;
         let k = |c: KeyCode| self.keys.contains(&c) as i32 as f64;
         v += f * (k(KeyCode::KeyW) - k(KeyCode::KeyS));
         v += right * (k(KeyCode::KeyD) - k(KeyCode::KeyA));
-        v += DVec3::Z * (k(KeyCode::KeyE) - k(KeyCode::KeyQ));
+        v += up * (k(KeyCode::KeyE) - k(KeyCode::KeyQ));
         let boost =
             if self.keys.contains(&KeyCode::ShiftLeft) || self.keys.contains(&KeyCode::ShiftRight) { 4.0 } else { 1.0 };
         self.cam.eye_in_world += v * self.cam.speed_mps * boost * dt;
     }
 
-    fn sample_faults(&mut self, now: Instant) {
-        let faults = mem::page_faults();
-        match self.stats.last_faults_at {
-            Some(t) if (now - t).as_secs_f64() >= 1.0 => {
-                let s = (now - t).as_secs_f64();
-                self.stats.major_faults_per_s = (faults.0 - self.stats.last_faults.0) as f64 / s;
-                self.stats.faults_per_s = (faults.1 - self.stats.last_faults.1) as f64 / s;
-                self.stats.last_faults = faults;
-                self.stats.last_faults_at = Some(now);
-            }
-            None => {
-                self.stats.last_faults = faults;
-                self.stats.last_faults_at = Some(now);
-            }
-            _ => {}
-        }
-    }
-
-    fn draw_panel(&mut self, encoder: &mut wgpu::CommandEncoder, view: &wgpu::TextureView, o: &WindowOptions) {
+    fn draw_panel(&mut self, encoder: &mut wgpu::CommandEncoder, view: &wgpu::TextureView, scene: &mut impl Scene) {
         let input = self.egui_state.take_egui_input(&self.window);
         let ctx = self.egui_ctx.clone();
         let mut output = ctx.run_ui(input, |ui| {
             egui::Window::new("relief")
                 .default_pos([12.0, 12.0])
                 .resizable(false)
-                .show(ui.ctx(), |ui| self.panel(ui, o));
+                .show(ui.ctx(), |ui| self.panel(ui, scene));
         });
         self.egui_state.handle_platform_output(&self.window, output.platform_output);
         let ppp = output.pixels_per_point;
@@ -534,34 +470,26 @@ impl State {
         textures.clear();
     }
 
-    fn panel(&mut self, ui: &mut egui::Ui, o: &WindowOptions) {
-        let st = &self.stats;
-        let fps = if st.frame_ms_avg > 0.0 { 1e3 / st.frame_ms_avg } else { 0.0 };
+    fn panel(&mut self, ui: &mut egui::Ui, scene: &mut impl Scene) {
+        let fps = if self.frame_ms_avg > 0.0 { 1e3 / self.frame_ms_avg } else { 0.0 };
+        // Enough decimals for the scale flown at: metres over a terrain, millimetres by a bunny.
+        let decimals = (2.0 - self.cam.speed_mps.log10().floor()).clamp(0.0, 6.0) as usize;
         egui::Grid::new("stats").num_columns(2).show(ui, |ui| {
             let mut row = |k: &str, v: String| {
                 ui.label(k);
                 ui.label(v);
                 ui.end_row();
             };
-            row("fps", format!("{fps:.1} ({:.1} ms)", st.frame_ms_avg));
-            row("refine", format!("{:.2} ms{}", st.refine_ms, if o.sync { " (sync)" } else { "" }));
-            row("triangles", format!("{}", self.renderer.triangles()));
-            row("strip length", format!("{}", self.renderer.strip_len()));
-            row("upload", format!("{} B this frame", st.upload_bytes));
-            row("strip upload", format!("{:.1} KiB (last)", st.strip_upload_bytes as f64 / 1024.0));
-            row("GPU heights", format!("{:.1} MiB", self.renderer.heights_bytes() as f64 / 1048576.0));
-            row("resident", format!("{:.1} MiB", mem::rss_bytes().unwrap_or(0) as f64 / 1048576.0));
-            row("page faults", format!("{:.0}/s ({:.0} major/s)", st.faults_per_s, st.major_faults_per_s));
-            row("strip lag", format!("{} frames", st.lag));
-            row("speed", format!("{:.0} m/s", self.cam.speed_mps));
+            row("fps", format!("{fps:.1} ({:.1} ms)", self.frame_ms_avg));
+            for (k, v) in scene.stats() {
+                row(k, v);
+            }
+            row("speed", format!("{:.decimals$} m/s", self.cam.speed_mps));
             let e = self.cam.eye_in_world;
-            row("eye", format!("{:.0}, {:.0}, {:.0} m", e.x, e.y, e.z));
+            row("eye", format!("{:.decimals$}, {:.decimals$}, {:.decimals$} m", e.x, e.y, e.z));
         });
         ui.separator();
-        ui.add(egui::Slider::new(&mut self.tolerance_px, 0.25..=32.0).logarithmic(true).text("τ (px)"));
-        ui.checkbox(&mut self.cull, "cull to the view");
-        ui.checkbox(&mut self.wireframe, "wireframe (T)");
-        ui.checkbox(&mut self.frozen, "freeze refinement (F)");
+        scene.controls(ui);
         ui.label("drag: look · WASD/QE: move · wheel: speed");
         ui.label("F12/P: screenshot · R: record path");
         if self.recording.is_some() {
@@ -576,4 +504,25 @@ impl State {
 /// Seconds since the epoch, for file names.
 fn timestamp() -> u64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs()).unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fly_camera_keeps_its_heading_about_any_up_axis() {
+        for up in UpAxis::ALL {
+            let (e1, e2, u) = up.frame();
+            let eye = DVec3::new(1.0, 2.0, 3.0);
+            let look = eye + e1 * 3.0 + e2 * 4.0 + u * 5.0;
+            let c = FlyCamera::looking(eye, look, 1.0, up);
+            assert!((c.forward() - (look - eye).normalize()).length() < 1e-12, "{up:?}");
+            assert!(c.right().dot(c.forward()).abs() < 1e-12 && c.right().dot(u) == 0.0);
+            // Right is to the right: forward × up.
+            assert!(c.right().dot(c.forward().cross(u)) > 0.0);
+            let cam = c.camera(60.0, 64, 48).unwrap();
+            assert!((cam.basis().0 - c.right()).length() < 1e-9, "{up:?}");
+        }
+    }
 }

@@ -1,0 +1,214 @@
+//! `relief fly` in a window: the terrain renderer for the frame and refinement on its own thread
+//! (or synchronous with `--sync`). Keys besides the shared ones (`window`): F freezes refinement
+//! (fly out and look at the frozen mesh and its culling), T toggles the wireframe.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use glam::DVec3;
+use winit::keyboard::KeyCode;
+
+use super::{FlyCamera, Scene, WindowSettings};
+use crate::camera::{Camera, UpAxis};
+use crate::error::Result;
+use crate::fly::{RefineJob, StripSource, Update};
+use crate::format::TerrainFile;
+use crate::mem;
+use crate::progress::Progress;
+use crate::refine::RefineOptions;
+use crate::render::terrain::FRAME_UNIFORM_BYTES;
+use crate::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
+
+/// Settings of an interactive flight over a terrain.
+#[derive(Clone, Debug)]
+pub struct WindowOptions {
+    /// Size, field of view, output directory, start (default: south-west of the DEM, above it).
+    pub window: WindowSettings,
+    pub refine: RefineOptions,
+    pub wireframe: bool,
+    pub threads: usize,
+    /// Refine on the render thread before each frame instead of on the refinement thread.
+    pub sync: bool,
+    pub progress: Progress,
+}
+
+/// Opens a window and flies over `terrain` until it is closed.
+pub fn fly_window(terrain: Arc<TerrainFile>, options: WindowOptions) -> Result<()> {
+    let settings = options.window.clone();
+    let scene = TerrainScene {
+        tolerance_px: options.refine.tolerance_px,
+        cull: options.refine.cull,
+        wireframe: options.wireframe,
+        terrain,
+        options,
+        drawn: None,
+        frozen: false,
+        refined_camera: None,
+        seq: 0,
+        stats: Stats::default(),
+    };
+    super::run(scene, settings)
+}
+
+/// Figures shown in the panel.
+#[derive(Default)]
+struct Stats {
+    refine_ms: f64,
+    /// Bytes sent this frame (strip when new, plus the uniform) and by the last strip upload.
+    upload_bytes: u64,
+    strip_upload_bytes: u64,
+    lag: u64,
+    faults_per_s: f64,
+    major_faults_per_s: f64,
+    last_faults: (u64, u64),
+    last_faults_at: Option<Instant>,
+}
+
+/// The renderer and where its strips come from, once the window's device exists.
+struct Drawn {
+    renderer: TerrainRenderer,
+    source: StripSource,
+}
+
+struct TerrainScene {
+    terrain: Arc<TerrainFile>,
+    options: WindowOptions,
+    drawn: Option<Drawn>,
+    tolerance_px: f64,
+    cull: bool,
+    wireframe: bool,
+    frozen: bool,
+    /// The camera the drawn strip was refined for (shown when frozen).
+    refined_camera: Option<Camera>,
+    seq: u64,
+    stats: Stats,
+}
+
+/// Starts south-west of the DEM, above its highest point, looking at its centre.
+fn start_camera(terrain: &TerrainFile, start: Option<(DVec3, DVec3)>) -> FlyCamera {
+    let h = terrain.header();
+    let [x0, y0, x1, y1] = h.valid_window;
+    let centre = DVec3::new(
+        0.5 * (x0 + x1 - 1) as f64 * h.spacing_m[0],
+        0.5 * (y0 + y1 - 1) as f64 * h.spacing_m[1],
+        h.z_min.max(0.0),
+    );
+    let size_m = ((x1 - x0) as f64 * h.spacing_m[0]).hypot((y1 - y0) as f64 * h.spacing_m[1]);
+    let (eye, look) = start.unwrap_or_else(|| {
+        let eye = centre + DVec3::new(-0.45 * size_m, -0.45 * size_m, 0.0);
+        (DVec3::new(eye.x, eye.y, h.z_max + 0.15 * size_m), centre)
+    });
+    FlyCamera::looking(eye, look, size_m / 30.0, UpAxis::Z)
+}
+
+impl Scene for TerrainScene {
+    fn title(&self) -> String {
+        format!("relief — {}", self.terrain.path().display())
+    }
+
+    fn start(&mut self, gpu: &Gpu, format: wgpu::TextureFormat, start: Option<(DVec3, DVec3)>) -> Result<FlyCamera> {
+        let o = &self.options;
+        let renderer = TerrainRenderer::new(gpu, &self.terrain, format, RendererOptions::default(), o.progress)?;
+        let source = StripSource::new(self.terrain.clone(), o.threads, !o.sync)?;
+        self.drawn = Some(Drawn { renderer, source });
+        Ok(start_camera(&self.terrain, start))
+    }
+
+    fn key(&mut self, code: KeyCode) {
+        match code {
+            KeyCode::KeyF => self.frozen = !self.frozen,
+            KeyCode::KeyT => self.wireframe = !self.wireframe,
+            _ => {}
+        }
+    }
+
+    fn update(&mut self, gpu: &Gpu, cam: &Camera) -> Result<()> {
+        let Some(d) = self.drawn.as_mut() else { return Ok(()) };
+        // Frozen: outline the view the drawn strip was refined (and culled) for.
+        let outline = match (self.frozen, self.refined_camera) {
+            (true, Some(c)) => {
+                let [ex, ey] = self.terrain.header().extent_m();
+                c.frustum_outline(0.3 * ex.max(ey)).to_vec()
+            }
+            _ => Vec::new(),
+        };
+        d.renderer.set_overlay_lines(gpu, &outline);
+        if !self.frozen {
+            self.seq += 1;
+            let options = RefineOptions { tolerance_px: self.tolerance_px, cull: self.cull, ..self.options.refine };
+            let job = RefineJob { camera: *cam, options, seq: self.seq };
+            let first = self.refined_camera.is_none();
+            let u: Update = d.source.update(gpu, &mut d.renderer, job, first);
+            self.stats.upload_bytes = u.upload_bytes + FRAME_UNIFORM_BYTES;
+            if u.uploaded {
+                self.stats.refine_ms = u.refine_ms.unwrap_or(0.0);
+                self.stats.strip_upload_bytes = u.upload_bytes;
+                self.stats.lag = u.lag;
+                self.refined_camera = Some(*cam);
+            }
+        } else {
+            self.stats.upload_bytes = FRAME_UNIFORM_BYTES;
+        }
+        self.sample_faults(Instant::now());
+        Ok(())
+    }
+
+    fn encode(
+        &self,
+        gpu: &Gpu,
+        encoder: &mut wgpu::CommandEncoder,
+        colour: &wgpu::TextureView,
+        depth: &wgpu::TextureView,
+        camera: &Camera,
+    ) {
+        if let Some(d) = &self.drawn {
+            let view = FrameView::new(&self.terrain, *camera);
+            d.renderer.encode(gpu, encoder, colour, depth, &view, DrawStyle { wireframe: self.wireframe });
+        }
+    }
+
+    fn stats(&self) -> Vec<(&'static str, String)> {
+        let Some(d) = &self.drawn else { return Vec::new() };
+        let st = &self.stats;
+        let r = &d.renderer;
+        vec![
+            ("refine", format!("{:.2} ms{}", st.refine_ms, if self.options.sync { " (sync)" } else { "" })),
+            ("triangles", format!("{}", r.triangles())),
+            ("strip length", format!("{}", r.strip_len())),
+            ("upload", format!("{} B this frame", st.upload_bytes)),
+            ("strip upload", format!("{:.1} KiB (last)", st.strip_upload_bytes as f64 / 1024.0)),
+            ("GPU heights", format!("{:.1} MiB", r.heights_bytes() as f64 / 1048576.0)),
+            ("resident", format!("{:.1} MiB", mem::rss_bytes().unwrap_or(0) as f64 / 1048576.0)),
+            ("page faults", format!("{:.0}/s ({:.0} major/s)", st.faults_per_s, st.major_faults_per_s)),
+            ("strip lag", format!("{} frames", st.lag)),
+        ]
+    }
+
+    fn controls(&mut self, ui: &mut egui::Ui) {
+        ui.add(egui::Slider::new(&mut self.tolerance_px, 0.25..=32.0).logarithmic(true).text("τ (px)"));
+        ui.checkbox(&mut self.cull, "cull to the view");
+        ui.checkbox(&mut self.wireframe, "wireframe (T)");
+        ui.checkbox(&mut self.frozen, "freeze refinement (F)");
+    }
+}
+
+impl TerrainScene {
+    fn sample_faults(&mut self, now: Instant) {
+        let faults = mem::page_faults();
+        let st = &mut self.stats;
+        match st.last_faults_at {
+            Some(t) if (now - t).as_secs_f64() >= 1.0 => {
+                let s = (now - t).as_secs_f64();
+                st.major_faults_per_s = (faults.0 - st.last_faults.0) as f64 / s;
+                st.faults_per_s = (faults.1 - st.last_faults.1) as f64 / s;
+                st.last_faults = faults;
+                st.last_faults_at = Some(now);
+            }
+            None => {
+                st.last_faults = faults;
+                st.last_faults_at = Some(now);
+            }
+            _ => {}
+        }
+    }
+}

@@ -1,0 +1,202 @@
+//! Meta-node trees on the real meshes: a small-memory build against the unlimited one along a
+//! path, the navigation's bookkeeping and foldovers on random views, the buffer pool under a tiny
+//! K, and the `relief mesh build | fly` commands.
+
+mod common;
+
+use std::path::Path;
+use std::sync::Arc;
+
+use glam::DVec3;
+use relief::camera::{Camera, UpAxis};
+use relief::flight::{orbit_box, OrbitOptions};
+use relief::mesh::read_mesh;
+use relief::vdtree::build::{build_vdt_from_mesh, BuildOptions};
+use relief::vdtree::metanode::{write_metanode_file, BlockingOptions, Forest, MetaNodeFile};
+use relief::vdtree::navigate::{ExtStore, MetaStore, NavOptions, Navigator, VirtStore};
+use relief::vdtree::{VdtFile, VdtMetric};
+
+/// Builds `mesh` with `memory_bytes` into `dir/name.vdt` and `dir/name.rmn`.
+fn build(mesh: &Path, memory_bytes: u64, dir: &Path, name: &str, blocking: BlockingOptions) -> (u64, MetaNodeFile) {
+    let m = read_mesh(mesh).unwrap();
+    let vdt = dir.join(format!("{name}.vdt"));
+    let report = build_vdt_from_mesh(m, &vdt, &BuildOptions::new(memory_bytes, VdtMetric::Length)).unwrap();
+    let f = VdtFile::open(&vdt).unwrap();
+    let forest = Forest {
+        nodes: f.nodes(),
+        triangles: f.triangles(),
+        base_triangles: f.base_triangles().len(),
+        leaves: f.leaves() as u32,
+        metric: f.metric() as u32,
+        bounds: f.bounds(),
+    };
+    let out = dir.join(format!("{name}.rmn"));
+    write_metanode_file(&forest, blocking, &out).unwrap();
+    (report.batches, MetaNodeFile::open(&out).unwrap())
+}
+
+fn orbit_cameras(f: &MetaNodeFile, frames: usize) -> Vec<Camera> {
+    let b = f.header().bounds;
+    let path = orbit_box(&b, UpAxis::Y, &OrbitOptions::new(frames)).unwrap();
+    (0..frames).map(|k| path.camera_with_up(k, UpAxis::Y, 60.0, 1280, 720).unwrap()).collect()
+}
+
+/// Random views around and inside the bounding box.
+fn random_cameras(f: &MetaNodeFile, n: usize, seed: u64) -> Vec<(Camera, f64)> {
+    let b = f.header().bounds;
+    let (c, d) = (b.centre(), b.diagonal());
+    let mut s = seed;
+    let mut rnd = move || {
+        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    };
+    (0..n)
+        .map(|_| {
+            let eye = c + DVec3::new(rnd(), rnd(), rnd()) * 2.0 * d;
+            let look = c + DVec3::new(rnd(), rnd(), rnd()) * 0.5 * d;
+            let tol = [0.5, 2.0, 8.0, 32.0][((rnd() + 0.5) * 3.99) as usize];
+            (Camera::new(eye, look, DVec3::Y, 60.0, 640, 360).unwrap(), tol)
+        })
+        .filter(|(c, _)| c.eye_in_world.distance(c.look_at_world) > 1e-6)
+        .collect()
+}
+
+#[test]
+fn small_memory_build_matches_the_unlimited_build_along_a_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = common::mesh("armadillo.off");
+    let m = read_mesh(&input).unwrap();
+    let mesh_bytes = m.positions.len() as u64 * 24 + m.triangles.len() as u64 * 12;
+    let blocking = BlockingOptions::default();
+    let (batches_small, small) = build(&input, mesh_bytes / 4, dir.path(), "small", blocking);
+    let (batches_all, all) = build(&input, 1 << 32, dir.path(), "all", blocking);
+    assert!(batches_small >= 3, "{batches_small} batches: the budget should force several");
+    assert_eq!(batches_all, 1);
+    let cameras = orbit_cameras(&all, 16);
+    let mut a = Navigator::new(&small, VirtStore::new(&small), NavOptions::default()).unwrap();
+    let mut b = Navigator::new(&all, VirtStore::new(&all), NavOptions::default()).unwrap();
+    for (k, cam) in cameras.iter().enumerate() {
+        for tol in [1.0, 4.0] {
+            let (sa, sb) = (a.update(cam, tol).unwrap(), b.update(cam, tol).unwrap());
+            let (ta, tb) = (sa.triangles as f64, sb.triangles as f64);
+            assert!((ta - tb).abs() <= 0.02 * tb, "frame {k}, τ {tol}: {ta} vs {tb} triangles");
+        }
+    }
+    // In fact the spanned sub-mesh build keeps the global order exactly, so the trees agree.
+    let (va, vb) =
+        (VdtFile::open(&dir.path().join("small.vdt")).unwrap(), VdtFile::open(&dir.path().join("all.vdt")).unwrap());
+    assert_eq!(va.nodes(), vb.nodes());
+    assert_eq!(va.triangles(), vb.triangles());
+}
+
+#[test]
+fn random_navigation_on_a_real_mesh_keeps_its_books_without_foldovers() {
+    let dir = tempfile::tempdir().unwrap();
+    let (_, f) = build(&common::mesh("bunny.off"), 1 << 32, dir.path(), "bunny", BlockingOptions::default());
+    let mut nav =
+        Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
+    let (mut splits, mut collapses) = (0, 0);
+    for (k, (cam, tol)) in random_cameras(&f, 60, 5).iter().enumerate() {
+        let s = nav.update(cam, *tol).unwrap();
+        nav.check().unwrap_or_else(|e| panic!("view {k}: {e}"));
+        splits += s.splits;
+        collapses += s.collapses;
+    }
+    assert_eq!(nav.foldovers(), 0, "a split or collapse flipped a triangle");
+    assert!(splits > 20_000 && collapses > 20_000, "{splits} splits, {collapses} collapses");
+}
+
+#[test]
+fn a_tiny_buffer_pool_never_evicts_a_meta_node_in_use() {
+    let dir = tempfile::tempdir().unwrap();
+    // Small pages, so the tree has many meta-nodes and the pool churns.
+    let blocking = BlockingOptions { levels_per_node: 4, page_bytes: 1024 };
+    let (_, f) = build(&common::mesh("armadillo.off"), 1 << 32, dir.path(), "arma", blocking);
+    let f = Arc::new(f);
+    // A pool of 1/16 of the meta-nodes: the far views release blocks, the near ones want them back.
+    let holders = f.header().metanodes as usize / 16;
+    assert!(holders > f.header().root_metanodes as usize + 8);
+    let store = ExtStore::with_holders(f.clone(), holders).unwrap();
+    let mut nav = Navigator::new(&f, store, NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
+    let (mut misses, mut adapts) = (0, 0);
+    for (k, (cam, tol)) in random_cameras(&f, 200, 11).iter().enumerate() {
+        let s = nav.update(cam, *tol).unwrap();
+        misses += s.misses;
+        adapts += s.splits + s.collapses;
+        nav.check().unwrap_or_else(|e| panic!("view {k}: {e}"));
+        nav.store().pool().check_invariants().unwrap_or_else(|e| panic!("view {k}: {e}"));
+        if k % 4 == 0 {
+            nav.store().pool().drain().unwrap();
+        }
+    }
+    let stats = nav.store().pool().stats();
+    assert!(misses > 0 && adapts > 0, "{misses} misses, {adapts} adapts");
+    assert!(stats.evictions > 0 && stats.second_chance_hits > 0, "{stats:?}");
+    assert_eq!(nav.store().second_chance_hits(), stats.second_chance_hits);
+    assert_eq!(nav.foldovers(), 0);
+}
+
+#[test]
+fn mesh_build_and_fly_commands() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bunny.rmn");
+    let o = common::relief()
+        .args(["mesh", "build"])
+        .arg(common::mesh("bunny.off"))
+        .arg(&out)
+        .args(["--memory", "1/2", "--json", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    for key in ["leaves", "nodes", "batches", "vdt_bytes", "build_ms", "peak_accounted_bytes", "memory_budget_bytes"] {
+        assert!(r[key].is_number(), "{key} missing in {r}");
+    }
+    for key in ["metanodes", "mnt_bytes", "data_bytes", "holder_bytes", "build_ms"] {
+        assert!(r["metanode"][key].is_number(), "metanode.{key} missing in {r}");
+    }
+    assert!(std::fs::read_dir(dir.path()).unwrap().count() == 1, "the intermediate forest is removed");
+    let path = dir.path().join("orbit.json");
+    let o = common::relief()
+        .args(["path", "orbit"])
+        .arg(&out)
+        .args(["--frames", "6", "--out"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    for mode in ["ext", "virt"] {
+        let o = common::relief()
+            .args(["mesh", "fly"])
+            .arg(&out)
+            .args(["--mode", mode, "--memory", "1M", "--no-render", "--json", "--quiet", "--path"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{mode}: {}", common::stderr_of(&o));
+        let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(r["frames"].as_array().unwrap().len(), 6);
+        for key in ["frame_ms_mean", "miss_pct", "adapt_mean", "triangles_mean", "pages_read"] {
+            assert!(r["summary"][key].is_number(), "{mode}: summary.{key} missing");
+        }
+        for key in ["adapt", "triangles", "misses", "frame_ms", "pages_read"] {
+            assert!(r["frames"][0][key].is_number(), "{mode}: frame key {key} missing");
+        }
+    }
+    // Bad input: one line, exit 1.
+    let bad = dir.path().join("bad.rmn");
+    std::fs::write(&bad, b"not a meta-node file").unwrap();
+    for (args, what) in [
+        (vec!["mesh", "fly", bad.to_str().unwrap(), "--path", path.to_str().unwrap()], "magic"),
+        (
+            vec!["mesh", "fly", out.to_str().unwrap(), "--path", path.to_str().unwrap(), "--memory", "8K"],
+            "place holders",
+        ),
+        (vec!["mesh", "build", "/nonexistent.off", out.to_str().unwrap(), "--memory", "1M"], "nonexistent"),
+    ] {
+        let o = common::relief().args(&args).output().unwrap();
+        let err = common::stderr_of(&o);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.trim().lines().count() == 1 && err.contains(what), "{args:?}: {err}");
+    }
+}
