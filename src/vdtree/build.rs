@@ -6,19 +6,24 @@
 //!    then ids; see [`EdgeKey`]) go into a scratch redb database beside the output. The leaves'
 //!    node records go to a scratch node file. This step holds the whole input mesh (the mesh
 //!    readers read whole files); the mesh is dropped before the budgeted build starts.
-//! 2. A batch, in one write transaction: take the smallest edges out of the B-tree as *spanning
-//!    edges*, loading each unloaded end (its state, all its live triangles, the states of their
-//!    other corners) into a [`Region`]; a union–find over the spanning edges' ends counts the
-//!    sub-meshes. Stop before the next load would pass the memory budget; ℓ is the last spanning
-//!    key. Then collapse over all loaded sub-meshes at once in global shortest-first order
-//!    ([`Region::run`]): a collapse is done only while the heap's top is smaller than everything
-//!    left in the B-tree and has both ends loaded, so the order is exactly that of the one-pass
-//!    in-memory algorithm. (The paper collapses up to ℓ; every edge left in the B-tree is > ℓ,
-//!    so going on up to the B-tree's minimum is the same rule, taken as far as it goes, and it
-//!    stops early at a boundary edge that got shorter than ℓ because its loaded end moved.)
-//!    New node records and the triangles that die at each node are appended to scratch files in
-//!    id order; the left-over edges (with their current keys), rejected edges and vertex and
-//!    triangle states go back into redb.
+//! 2. A batch, in one write transaction ([`Region::run`]):
+//!    - Spanning: take the smallest edges out of the B-tree as *spanning edges*, loading each
+//!      unloaded end (its state, all its live triangles, the states of their other corners)
+//!      into a [`Region`]; a union–find over loaded vertices joined by edges tracks the
+//!      sub-meshes. Stop before the next load would pass [`BuildOptions::span_fraction`] of the
+//!      budget; ℓ is the last spanning key, and every edge left in the B-tree is longer.
+//!    - Collapsing, over all loaded sub-meshes at once, in global shortest-first order with one
+//!      priority queue. The paper collapses each sub-mesh up to ℓ, which can break the order:
+//!      a boundary edge whose loaded end moved may become shorter than ℓ while its other end is
+//!      not loaded. Here the next edge is always the smallest pending edge overall (heap or
+//!      B-tree); if an end of it is not loaded, that vertex is loaded on demand (the paper's
+//!      "load the adjacent triangles" for the extreme case), and the batch ends only when such a
+//!      load does not fit in the budget. So the collapses are exactly those of the one-pass
+//!      in-memory algorithm, in the same order, whatever the budget: a batched build writes the
+//!      same bytes as an unlimited one.
+//!    - New node records and the triangles that die at each node are appended to scratch files
+//!      in id order; the left-over edges (with their current keys), rejected edges and vertex
+//!      and triangle states go back into redb.
 //! 3. Repeat until the B-tree is empty. With a budget that holds the whole mesh, the first batch
 //!    loads everything: the "unlimited" build is the same code with one batch.
 //! 4. Assemble: the node file is mapped and the children's `parent` fields patched, then header,
@@ -27,7 +32,8 @@
 //!    which is renamed over it ([`crate::atomic_file`]).
 //!
 //! Every batch makes progress: its first spanning edge is the globally smallest pending edge, so
-//! it is the first the collapse phase examines (it collapses or is rejected). Rejected edges come
+//! it is the first the collapse phase examines (it collapses or is rejected), and loads within a
+//! batch are finite (a loaded vertex stays loaded until it is collapsed). Rejected edges come
 //! back only when a neighbour collapses, as in the in-memory algorithm, so the build terminates.
 //! If the budget cannot hold even the first spanning edge's neighbourhood, the build fails with
 //! [`Error::MemoryBudget`].
@@ -36,11 +42,11 @@
 //! The budget covers: the redb page cache (an eighth of the budget, at least 32 KiB and at most
 //! 256 MiB), the two scratch file buffers (16 KiB each), the union–find and the region
 //! ([`Region::used_bytes`], with head-room for the collapse phase, [`Region::committed_bytes`]).
-//! `peak_accounted_bytes` is the sum of those at their peaks. The sampled peak of anonymous
+//! `peak_accounted_bytes` is the sum of those at their peaks, the cache counted as what it could
+//! hold (its size, or the database file's if that is smaller). The sampled peak of anonymous
 //! resident memory of the build phase (after ingest) is reported beside it; it also holds what no
 //! account sees: the allocator's slack, redb's own bookkeeping, the program itself.
 
-use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
@@ -51,7 +57,7 @@ use redb::{Database, Durability, ReadableDatabase, ReadableTable, ReadableTableM
 use serde::Serialize;
 
 use super::simplify::{
-    add_quadrics, collapse_options, key_ends, plane_quadric, EdgeKey, Quadric, Region, Store, VertexState,
+    add_quadrics, collapse_options, cost, key_ends, plane_quadric, EdgeKey, Quadric, Region, Store, VertexState,
 };
 use super::vdt::{write_header, VdtHeader, VdtMetric, HEADER_BYTES, NODE_BYTES};
 use super::{VdtNode, NONE};
@@ -80,6 +86,12 @@ const MAX_CACHE_BYTES: u64 = 256 << 20;
 /// read for the estimate), bytes.
 const MISC_BYTES: u64 = 16 << 10;
 
+/// [`BuildOptions::span_fraction`]'s default.
+pub const DEFAULT_SPAN_FRACTION: f64 = 0.5;
+
+/// Below this, no region can hold an edge's neighbourhood: refused before ingest, bytes.
+const SMALLEST_REGION_BYTES: u64 = 32 << 10;
+
 /// How to build.
 #[derive(Clone, Debug)]
 pub struct BuildOptions {
@@ -88,12 +100,21 @@ pub struct BuildOptions {
     pub metric: VdtMetric,
     /// Where the scratch database and files go (default: the output's directory).
     pub scratch_dir: Option<PathBuf>,
+    /// Each batch first grows sub-meshes from the shortest edges until this fraction of the
+    /// budget is committed, then collapses, loading more as the order needs it (0 to 1).
+    pub span_fraction: f64,
     pub progress: Progress,
 }
 
 impl BuildOptions {
     pub fn new(memory_budget_bytes: u64, metric: VdtMetric) -> Self {
-        BuildOptions { memory_budget_bytes, metric, scratch_dir: None, progress: Progress::hidden() }
+        BuildOptions {
+            memory_budget_bytes,
+            metric,
+            scratch_dir: None,
+            span_fraction: DEFAULT_SPAN_FRACTION,
+            progress: Progress::hidden(),
+        }
     }
 }
 
@@ -115,8 +136,10 @@ pub struct BuildReport {
     pub rejections: u64,
     /// Load-and-collapse rounds (1: the whole mesh fitted).
     pub batches: u64,
-    /// Connected components of spanning edges, summed over the batches.
+    /// Connected components of loaded vertices after each batch's spanning phase, summed.
     pub sub_meshes: u64,
+    /// Vertices loaded into memory, summed over the batches.
+    pub loads: u64,
     pub vdt_bytes: u64,
     /// The input mesh in memory: 24 bytes a vertex, 12 a triangle.
     pub mesh_bytes: u64,
@@ -139,6 +162,7 @@ pub struct BuildReport {
 /// replaced atomically; scratch files are removed whatever happens.
 pub fn build_vdt(input: &Path, output: &Path, options: &BuildOptions) -> Result<BuildReport> {
     let start = Instant::now();
+    check_budget(options.memory_budget_bytes)?;
     let mesh = read_mesh(input)?;
     build_vdt_timed(mesh, output, options, start)
 }
@@ -154,10 +178,10 @@ fn fixed_bytes(budget: u64) -> (u64, u64) {
     (cache, cache + 2 * WRITER_BYTES as u64 + MISC_BYTES)
 }
 
-fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Instant) -> Result<BuildReport> {
-    let budget = options.memory_budget_bytes;
+/// Refuses a budget below the fixed part plus the smallest region.
+fn check_budget(budget: u64) -> Result<()> {
     let (cache_bytes, fixed) = fixed_bytes(budget);
-    let smallest = fixed + Region::load_cost_bytes(16);
+    let smallest = fixed + SMALLEST_REGION_BYTES;
     if budget < smallest {
         return Err(Error::MemoryBudget {
             budget_bytes: budget,
@@ -166,6 +190,13 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
             ),
         });
     }
+    Ok(())
+}
+
+fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Instant) -> Result<BuildReport> {
+    let budget = options.memory_budget_bytes;
+    check_budget(budget)?;
+    let (cache_bytes, fixed) = fixed_bytes(budget);
     let n = mesh.positions.len();
     let t = mesh.triangles.len();
     // Node ids must stay below NONE: at most 2n − 1 nodes.
@@ -195,24 +226,22 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
     let sampler = crate::mem::AnonSampler::start();
     let build_start = Instant::now();
     let region_budget = budget - fixed;
-    let max_heap = (2 * edges + 256).min((region_budget / super::simplify::cost::HEAP_ENTRY) as usize);
+    let max_heap = (2 * edges + 256).min((region_budget / cost::HEAP_ENTRY) as usize);
     let mut builder = Builder {
         db: &db,
         db_path: &db_path,
         out: &mut out,
         region: Region::new(
             options.metric,
+            region_budget,
             n as u32,
-            n.min((region_budget / (super::simplify::cost::VERTEX_SLOT + 4)) as usize),
-            t.min((region_budget / (super::simplify::cost::TRIANGLE_SLOT + 4)) as usize),
+            n.min((region_budget / cost::VERTEX_SLOT) as usize),
+            t.min((region_budget / cost::TRIANGLE_SLOT) as usize),
             max_heap,
         ),
-        union_find: BTreeMap::new(),
-        budget,
-        region_budget,
-        peak_union_find: 0,
+        span_fraction: options.span_fraction,
         batches: 0,
-        sub_meshes: 0,
+        max_db_bytes: std::fs::metadata(&db_path).map_or(0, |m| m.len()),
     };
     let bar = options.progress.bar("vdt build", n.saturating_sub(1) as u64, "collapses");
     while builder.batch()? {
@@ -221,8 +250,10 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
     }
     bar.finish_and_clear();
     let stats = builder.region.stats();
-    let peak_accounted = fixed + builder.peak_union_find + builder.region.peak_bytes();
-    let (batches, sub_meshes) = (builder.batches, builder.sub_meshes);
+    // The cache cannot hold more than the database's pages: count what it could hold.
+    let db_bytes = builder.max_db_bytes.max(std::fs::metadata(&db_path).map_or(0, |m| m.len()));
+    let peak_accounted = fixed - cache_bytes + cache_bytes.min(db_bytes) + builder.region.peak_bytes();
+    let batches = builder.batches;
     let nodes = builder.region.next_id() as u64;
     drop(builder);
 
@@ -239,7 +270,8 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
         collapses: stats.collapses,
         rejections: stats.rejections,
         batches,
-        sub_meshes,
+        sub_meshes: stats.sub_meshes,
+        loads: stats.loads,
         vdt_bytes,
         mesh_bytes,
         ingest_ms,
@@ -418,26 +450,11 @@ struct Builder<'a> {
     db_path: &'a Path,
     out: &'a mut Output,
     region: Region,
-    /// Union–find over the spanning edges' ends (parent links; a root maps to itself).
-    union_find: BTreeMap<u32, u32>,
-    budget: u64,
-    region_budget: u64,
-    peak_union_find: u64,
+    /// [`Region::run`]'s spanning phase stops at this fraction of the region's budget.
+    span_fraction: f64,
     batches: u64,
-    sub_meshes: u64,
-}
-
-/// The root of `v`'s set (added as a singleton if new), compressing the path.
-fn find(union_find: &mut BTreeMap<u32, u32>, v: u32) -> u32 {
-    let mut root = *union_find.entry(v).or_insert(v);
-    while let Some(&up) = union_find.get(&root).filter(|&&up| up != root) {
-        root = up;
-    }
-    let mut x = v;
-    while x != root {
-        x = union_find.insert(x, root).unwrap_or(root);
-    }
-    root
+    /// The scratch database's largest size after a batch, bytes.
+    max_db_bytes: u64,
 }
 
 impl Builder<'_> {
@@ -461,74 +478,13 @@ impl Builder<'_> {
             if disk.pending_min()?.is_none() {
                 return Ok(false);
             }
-            self.union_find.clear();
-            let mut components = 0u64;
-            let mut spanned = false;
-            let mut joined = Vec::new();
-            let uf_cost = super::simplify::cost::INDEX_ENTRY;
-            while let Some(key) = disk.pending_min()? {
-                let (a, b) = key_ends(key);
-                let mut loads = Vec::with_capacity(2);
-                let mut cost = 0;
-                for v in [a, b] {
-                    if !self.region.is_loaded(v) {
-                        let (state, tris) = disk.read_vertex(v)?;
-                        // The union–find may take the vertex and its loaded neighbours.
-                        cost += Region::load_cost_bytes(tris.len()) + (1 + tris.len() as u64 * 2) * uf_cost;
-                        loads.push((v, state, tris));
-                    }
-                }
-                if loads.is_empty() {
-                    return Err(Error::InvalidArgument(format!(
-                        "internal error in the VDT build: edge ({a}, {b}) in the B-tree has both ends loaded"
-                    )));
-                }
-                let uf_bytes = self.union_find.len() as u64 * uf_cost;
-                let committed = self.region.committed_bytes() + uf_bytes;
-                if committed + cost > self.region_budget {
-                    if !spanned {
-                        return Err(Error::MemoryBudget {
-                            budget_bytes: self.budget,
-                            problem: format!(
-                                "the first edge's neighbourhood needs about {} bytes beyond the {} bytes of the redb cache and buffers",
-                                committed + cost,
-                                self.budget - self.region_budget
-                            ),
-                        });
-                    }
-                    break;
-                }
-                disk.take_pending(key)?;
-                spanned = true;
-                if !self.union_find.contains_key(&a) {
-                    components += 1;
-                }
-                joined.clear();
-                joined.push(b);
-                for (v, state, tris) in loads {
-                    self.region.load(v, state, &tris, key, &mut disk, &mut joined)?;
-                }
-                // Sub-meshes: a's component joins b's and those of the loaded vertices that the
-                // new ones share an edge with (a and b are both loaded now).
-                for &c in &joined {
-                    if !self.union_find.contains_key(&c) {
-                        components += 1;
-                    }
-                    let (ra, rc) = (find(&mut self.union_find, a), find(&mut self.union_find, c));
-                    if ra != rc {
-                        self.union_find.insert(ra.max(rc), ra.min(rc));
-                        components -= 1;
-                    }
-                }
-                self.peak_union_find = self.peak_union_find.max(self.union_find.len() as u64 * uf_cost);
-            }
-            self.sub_meshes += components;
-            self.region.run(&mut disk)?;
+            self.region.run(self.span_fraction, &mut disk)?;
             self.region.write_back(&mut disk)?;
             more = disk.pending_min()?.is_some();
         }
         txn.commit().db(db_path)?;
         self.batches += 1;
+        self.max_db_bytes = self.max_db_bytes.max(std::fs::metadata(db_path).map_or(0, |m| m.len()));
         Ok(more)
     }
 }
@@ -548,8 +504,10 @@ impl Disk<'_> {
     fn missing(&self, what: String) -> Error {
         Error::Scratch { path: self.path.to_path_buf(), problem: format!("{what} is missing") }
     }
+}
 
-    fn read_vertex(&mut self, v: u32) -> Result<(VertexState, Vec<u32>)> {
+impl Store for Disk<'_> {
+    fn vertex(&mut self, v: u32) -> Result<(VertexState, Vec<u32>)> {
         let Some(rec) = self.vertices.get(v).db(self.path)? else {
             return Err(self.missing(format!("vertex {v}")));
         };
@@ -557,9 +515,7 @@ impl Disk<'_> {
         let state = decode_state(bytes).ok_or_else(|| self.missing(format!("a valid record of vertex {v}")))?;
         Ok((state, decode_triangles(bytes).collect()))
     }
-}
 
-impl Store for Disk<'_> {
     fn vertex_state(&mut self, v: u32) -> Result<VertexState> {
         let Some(rec) = self.vertices.get(v).db(self.path)? else {
             return Err(self.missing(format!("vertex {v}")));

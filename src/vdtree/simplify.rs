@@ -36,9 +36,9 @@
 //! the heap (pending) or in the region's rejected set. An edge between a loaded vertex and a halo
 //! vertex stays in the store's B-tree if pending and unchanged since loading, and is in the region
 //! otherwise. Edges between two unloaded vertices are in the store. So the smallest pending edge
-//! overall is the smaller of the heap's top and the store's B-tree minimum: a collapse is done
-//! only when the heap's top is smaller than the B-tree's minimum and has both ends loaded, which
-//! keeps the global order exact (see [`Region::run`]).
+//! overall is the smaller of the heap's top and the store's B-tree minimum: that edge is
+//! collapsed (or rejected) next, after loading whichever of its ends is not loaded, which keeps
+//! the global order exact (see [`Region::run`]).
 
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BTreeSet, BinaryHeap};
@@ -186,6 +186,8 @@ pub fn collapse_options(
 /// The disk side of a region (see [`super::build`]): the B-tree of pending edges, the table of
 /// rejected edges (both orientations), vertex and triangle records, and the output.
 pub trait Store {
+    /// A vertex's state and its triangle ids (some may have died since they were written).
+    fn vertex(&mut self, v: u32) -> Result<(VertexState, Vec<u32>)>;
     /// A vertex's state (it must exist: it is a corner of a live triangle).
     fn vertex_state(&mut self, v: u32) -> Result<VertexState>;
     /// A live triangle's current corners and its input (leaf) corners; `None` once it died.
@@ -216,19 +218,21 @@ pub trait Store {
 /// Why [`Region::run`] stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stop {
-    /// No pending edge is left in the region.
+    /// No pending edge is left, in the region or in the store.
     Exhausted,
-    /// The B-tree's smallest pending edge comes next.
-    Bound,
-    /// The next edge has an end outside the region (a boundary edge that changed).
-    Boundary,
+    /// The next step needs a vertex loaded and the budget cannot hold it.
+    Budget,
 }
 
-/// Counters of one region's work.
+/// Counters of a region's work (over all batches).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct RegionStats {
     pub collapses: u64,
     pub rejections: u64,
+    /// Vertices loaded (a vertex loaded in several batches counts each time).
+    pub loads: u64,
+    /// Connected components of loaded vertices at the end of each spanning phase, summed.
+    pub sub_meshes: u64,
 }
 
 #[derive(Debug)]
@@ -249,12 +253,13 @@ struct TriSlot {
 
 /// Accounting constants, bytes (see [`Region::used_bytes`]).
 pub mod cost {
-    /// One vertex slot (state, id, flags, triangle-list header).
-    pub const VERTEX_SLOT: u64 = std::mem::size_of::<super::VertSlot>() as u64;
-    /// One triangle slot.
-    pub const TRIANGLE_SLOT: u64 = std::mem::size_of::<super::TriSlot>() as u64;
-    /// One entry of a `BTreeMap<u32, u32>` id index: 8 bytes in nodes of 11 that are at least
-    /// 5/11 full, plus the nodes' headers and allocator overhead (about 112 bytes a node).
+    /// One vertex slot (state, id, flags, triangle-list header) and its free-list entry.
+    pub const VERTEX_SLOT: u64 = std::mem::size_of::<super::VertSlot>() as u64 + 4;
+    /// One triangle slot and its free-list entry.
+    pub const TRIANGLE_SLOT: u64 = std::mem::size_of::<super::TriSlot>() as u64 + 4;
+    /// One entry of a `BTreeMap<u32, u32>` (id index, union–find): 8 bytes in nodes of 11 that
+    /// are at least 5/11 full, plus the nodes' headers and allocator overhead (about 112 bytes a
+    /// node).
     pub const INDEX_ENTRY: u64 = 28;
     /// One entry of the `BTreeSet<u64>` of rejected edges (nodes of about 104 + 16 bytes).
     pub const REJECTED_ENTRY: u64 = 26;
@@ -272,9 +277,27 @@ pub mod cost {
     pub const COLLAPSE_SCRATCH: u64 = 16 << 10;
 }
 
+/// A vertex read and sized, ready to be loaded ([`Region::load`]).
+struct Prepared {
+    v: u32,
+    state: VertexState,
+    /// Its live triangles: already in the region (slot), or read from the store.
+    tris: Vec<PreparedTri>,
+    /// Corners to add to the halo, with their states.
+    halo: Vec<(u32, VertexState)>,
+    cost: u64,
+}
+
+enum PreparedTri {
+    Here(u32),
+    Read(u32, [u32; 3], [u32; 3]),
+}
+
 /// A loaded region and the in-memory part of the collapse order (see the module docs).
 pub struct Region {
     metric: VdtMetric,
+    /// What [`Self::committed_bytes`] may reach.
+    budget_bytes: u64,
     verts: Vec<VertSlot>,
     free_verts: Vec<u32>,
     vert_index: BTreeMap<u32, u32>,
@@ -284,8 +307,15 @@ pub struct Region {
     heap: BinaryHeap<Reverse<EdgeKey>>,
     /// Heap entries whose ends are both alive (the rest are stale, dropped lazily).
     heap_live: usize,
+    /// The heap's largest length so far (its buffer never shrinks).
+    heap_high_water: usize,
+    /// Edges from a loaded vertex to a halo vertex.
+    boundary: usize,
     /// Rejected edges with an end in the region, both orientations: `a << 32 | b`.
     rejected: BTreeSet<u64>,
+    /// Union–find over loaded vertices joined by edges (parent links; roots map to themselves).
+    union_find: BTreeMap<u32, u32>,
+    components: u64,
     /// Allocated bytes of the loaded vertices' triangle lists.
     list_bytes: u64,
     loaded: usize,
@@ -320,12 +350,21 @@ fn f32_position(p: [f64; 3]) -> [f64; 3] {
 }
 
 impl Region {
-    /// An empty region; new nodes get ids from `next_id` on. The capacities are reserved up
-    /// front (address space only: pages are touched as slots are used), so growing a slab never
-    /// copies it; pass what the memory budget could hold at most.
-    pub fn new(metric: VdtMetric, next_id: u32, max_vertices: usize, max_triangles: usize, max_heap: usize) -> Self {
+    /// An empty region that may commit up to `budget_bytes` ([`Self::committed_bytes`]); new
+    /// nodes get ids from `next_id` on. The slabs' capacities are reserved up front (address
+    /// space only: pages are touched as slots are used), so growing a slab never copies it;
+    /// pass what the budget could hold at most.
+    pub fn new(
+        metric: VdtMetric,
+        budget_bytes: u64,
+        next_id: u32,
+        max_vertices: usize,
+        max_triangles: usize,
+        max_heap: usize,
+    ) -> Self {
         Region {
             metric,
+            budget_bytes,
             verts: Vec::with_capacity(max_vertices),
             free_verts: Vec::with_capacity(max_vertices),
             vert_index: BTreeMap::new(),
@@ -334,7 +373,11 @@ impl Region {
             tri_index: BTreeMap::new(),
             heap: BinaryHeap::with_capacity(max_heap),
             heap_live: 0,
+            heap_high_water: 0,
+            boundary: 0,
             rejected: BTreeSet::new(),
+            union_find: BTreeMap::new(),
+            components: 0,
             list_bytes: 0,
             loaded: 0,
             next_id,
@@ -366,37 +409,29 @@ impl Region {
         self.vert_index.get(&v).is_some_and(|&s| self.verts[s as usize].loaded)
     }
 
-    /// Bytes held now: the slabs up to their high-water marks (their pages stay resident), the
-    /// indices, the heap up to its high-water mark, the rejected set and the triangle lists. Each
+    /// Bytes held now: the slabs and the heap up to their high-water marks (their pages stay
+    /// resident), the indices, the union–find, the rejected set and the triangle lists. Each
     /// figure is an upper estimate from the [`cost`] constants.
     pub fn used_bytes(&self) -> u64 {
-        self.verts.len() as u64 * (cost::VERTEX_SLOT + 4)
-            + self.tris.len() as u64 * (cost::TRIANGLE_SLOT + 4)
-            + (self.vert_index.len() + self.tri_index.len()) as u64 * cost::INDEX_ENTRY
+        self.verts.len() as u64 * cost::VERTEX_SLOT
+            + self.tris.len() as u64 * cost::TRIANGLE_SLOT
+            + (self.vert_index.len() + self.tri_index.len() + self.union_find.len()) as u64 * cost::INDEX_ENTRY
             + self.rejected.len() as u64 * cost::REJECTED_ENTRY
-            + self.heap.len() as u64 * cost::HEAP_ENTRY
+            + self.heap_high_water as u64 * cost::HEAP_ENTRY
             + self.list_bytes
     }
 
-    /// [`Self::used_bytes`] plus what the collapse phase may still add: stale heap entries up to
-    /// the compaction threshold (one per live entry), a rejected pair per live entry, and one
-    /// collapse's scratch. Loading stops before this would pass the budget.
+    /// [`Self::used_bytes`] plus what collapsing may still add without loading: a rejected pair
+    /// per live heap entry, stale heap entries up to the compaction threshold, a heap entry (and
+    /// its stale copy and rejected pair) per boundary edge that a collapse renews, and one
+    /// collapse's scratch. Loads are refused past [`Self::new`]'s budget of this.
     pub fn committed_bytes(&self) -> u64 {
+        let heap_cap = (2 * (self.heap_live + self.boundary) + 256).saturating_sub(self.heap_high_water);
         self.used_bytes()
-            + self.heap_live as u64 * (cost::HEAP_ENTRY + 2 * cost::REJECTED_ENTRY)
-            + 256 * cost::HEAP_ENTRY
+            + self.heap_live as u64 * 2 * cost::REJECTED_ENTRY
+            + heap_cap as u64 * cost::HEAP_ENTRY
+            + self.boundary as u64 * 2 * cost::REJECTED_ENTRY
             + cost::COLLAPSE_SCRATCH
-    }
-
-    /// An upper bound of what loading one vertex with `triangles` (possibly dead) triangle ids
-    /// adds to [`Self::committed_bytes`]: itself, its triangles, up to two new halo vertices per
-    /// triangle, and up to two edges per triangle (heap, compaction headroom and rejected pairs).
-    pub fn load_cost_bytes(triangles: usize) -> u64 {
-        let k = triangles as u64;
-        (1 + 2 * k) * (cost::VERTEX_SLOT + 4 + cost::INDEX_ENTRY)
-            + k * (cost::TRIANGLE_SLOT + 4 + cost::INDEX_ENTRY)
-            + cost::list(triangles)
-            + 2 * k * (2 * cost::HEAP_ENTRY + 4 * cost::REJECTED_ENTRY)
     }
 
     /// The largest [`Self::used_bytes`] seen at a checkpoint (after each load and collapse).
@@ -405,6 +440,7 @@ impl Region {
     }
 
     fn note_peak(&mut self) {
+        self.heap_high_water = self.heap_high_water.max(self.heap.len());
         self.peak_bytes = self.peak_bytes.max(self.used_bytes());
     }
 
@@ -467,75 +503,134 @@ impl Region {
         self.heap_live += 1;
     }
 
-    /// Loads vertex `v` with its `state` and triangle ids (some may be dead), reading its live
-    /// triangles and the states of their other corners from `store`, and moving its edges to
-    /// loaded vertices and its rejected edges into the region. `spanning` is the edge just taken
-    /// from the B-tree (it is no longer there). The loaded neighbours that `v` now shares an edge
-    /// with are appended to `joined` (the caller's sub-mesh bookkeeping).
-    pub fn load(
-        &mut self,
-        v: u32,
-        state: VertexState,
-        triangle_ids: &[u32],
-        spanning: EdgeKey,
-        store: &mut impl Store,
-        joined: &mut Vec<u32>,
-    ) -> Result<()> {
-        if self.is_loaded(v) {
-            return Ok(());
-        }
-        let s = match self.slot(v) {
-            Some(s) => s,
-            None => self.new_vert_slot(VertSlot { id: v, loaded: false, state, tris: Vec::new() }),
-        };
-        let mut list = Vec::with_capacity(triangle_ids.len());
-        for &t in triangle_ids {
-            if let Some(&ts) = self.tri_index.get(&t) {
-                list.push(ts);
+    /// Reads vertex `v`, its live triangles and the states of their corners that are new to the
+    /// region, and sizes what loading it adds to [`Self::committed_bytes`].
+    fn prepare(&self, v: u32, store: &mut impl Store) -> Result<Prepared> {
+        let (state, ids) = store.vertex(v)?;
+        let mut tris = Vec::with_capacity(ids.len());
+        let mut corners_seen = Vec::with_capacity(2 * ids.len());
+        let mut new_tris = 0u64;
+        for t in ids {
+            let corners = if let Some(&ts) = self.tri_index.get(&t) {
+                tris.push(PreparedTri::Here(ts));
+                self.tris[ts as usize].corners
             } else if let Some((corners, leaves)) = store.triangle(t)? {
                 if !corners.contains(&v) {
                     return Err(internal(format!("triangle {t} {corners:?} is listed by vertex {v}")));
                 }
-                let slot = TriSlot { id: t, corners, leaves };
-                let ts = match self.free_tris.pop() {
-                    Some(ts) => {
-                        self.tris[ts as usize] = slot;
-                        ts
-                    }
-                    None => {
-                        self.tris.push(slot);
-                        (self.tris.len() - 1) as u32
-                    }
-                };
-                self.tri_index.insert(t, ts);
-                list.push(ts);
+                tris.push(PreparedTri::Read(t, corners, leaves));
+                new_tris += 1;
+                corners
+            } else {
+                continue; // died while v was outside the region
+            };
+            corners_seen.extend(corners.into_iter().filter(|&c| c != v));
+        }
+        corners_seen.sort_unstable();
+        corners_seen.dedup();
+        let k = corners_seen.len() as u64;
+        let mut halo = Vec::new();
+        for &c in &corners_seen {
+            if self.slot(c).is_none() {
+                halo.push((c, store.vertex_state(c)?));
+            }
+        }
+        let new_verts = halo.len() as u64 + u64::from(self.slot(v).is_none());
+        let cost = new_verts * (cost::VERTEX_SLOT + cost::INDEX_ENTRY)
+            + new_tris * (cost::TRIANGLE_SLOT + cost::INDEX_ENTRY)
+            + cost::list(tris.len())
+            // Per edge: a heap entry with its committed stale copy and rejected pair (as a live
+            // or a boundary edge), rejected pairs possibly read from the store, a union–find
+            // entry.
+            + k * (2 * cost::HEAP_ENTRY + 4 * cost::REJECTED_ENTRY + cost::INDEX_ENTRY)
+            + cost::INDEX_ENTRY;
+        Ok(Prepared { v, state, tris, halo, cost })
+    }
+
+    /// Loads the vertices of `vs` that are not loaded yet (each with its live triangles; the
+    /// other corners join the halo), moving their edges to loaded vertices out of the store's
+    /// B-tree into the heap and their rejected edges into the region; or, if that would take
+    /// [`Self::committed_bytes`] past `limit_bytes`, loads nothing and returns false.
+    pub fn load(&mut self, vs: &[u32], limit_bytes: u64, store: &mut impl Store) -> Result<bool> {
+        let mut prepared = Vec::with_capacity(vs.len());
+        let mut total = 0;
+        for &v in vs {
+            if !self.is_loaded(v) && !prepared.iter().any(|p: &Prepared| p.v == v) {
+                let p = self.prepare(v, store)?;
+                total += p.cost;
+                prepared.push(p);
+            }
+        }
+        if self.committed_bytes() + total > limit_bytes.min(self.budget_bytes) {
+            return Ok(false);
+        }
+        for p in prepared {
+            self.commit_load(p, store)?;
+        }
+        self.note_peak();
+        Ok(true)
+    }
+
+    fn commit_load(&mut self, p: Prepared, store: &mut impl Store) -> Result<()> {
+        let v = p.v;
+        for (c, state) in p.halo {
+            if self.slot(c).is_none() {
+                self.new_vert_slot(VertSlot { id: c, loaded: false, state, tris: Vec::new() });
+            }
+        }
+        let s = match self.slot(v) {
+            Some(s) => s,
+            None => self.new_vert_slot(VertSlot { id: v, loaded: false, state: p.state, tris: Vec::new() }),
+        };
+        let mut list = Vec::with_capacity(p.tris.len());
+        for t in p.tris {
+            match t {
+                PreparedTri::Here(ts) => list.push(ts),
+                // Read for v, but loaded meanwhile with the other vertex of the same load.
+                PreparedTri::Read(id, ..) if self.tri_index.contains_key(&id) => list.push(self.tri_index[&id]),
+                PreparedTri::Read(id, corners, leaves) => {
+                    let slot = TriSlot { id, corners, leaves };
+                    let ts = match self.free_tris.pop() {
+                        Some(ts) => {
+                            self.tris[ts as usize] = slot;
+                            ts
+                        }
+                        None => {
+                            self.tris.push(slot);
+                            (self.tris.len() - 1) as u32
+                        }
+                    };
+                    self.tri_index.insert(id, ts);
+                    list.push(ts);
+                }
             }
         }
         self.list_bytes += cost::list(list.capacity());
         self.verts[s].tris = list;
         self.verts[s].loaded = true;
         self.loaded += 1;
+        self.stats.loads += 1;
+        if self.union_find.insert(v, v).is_none() {
+            self.components += 1;
+        }
         self.neighbours(s);
         let nbrs = std::mem::take(&mut self.nbrs);
         for &c in &nbrs {
-            if self.slot(c).is_none() {
-                let state = store.vertex_state(c)?;
-                self.new_vert_slot(VertSlot { id: c, loaded: false, state, tris: Vec::new() });
-            }
-        }
-        for &c in &nbrs {
             if !self.is_loaded(c) {
-                continue; // a boundary edge stays where it is
+                self.boundary += 1; // stays where it is: the B-tree, or the region if rejected
+                continue;
             }
-            joined.push(c);
+            self.boundary = self.boundary.saturating_sub(1); // was c's boundary edge
+            self.union(v, c);
             if self.rejected.contains(&pair(v, c)) {
-                continue; // already here
+                continue;
             }
+            // Pending: in the B-tree if unchanged since c was loaded, else already in the heap
+            // (c was renewed or re-examined since).
             let key = self.key_of(v, c)?;
-            if key != spanning && !store.take_pending(key)? {
-                return Err(internal(format!("edge ({v}, {c}) is neither pending nor rejected")));
+            if store.take_pending(key)? {
+                self.push(key);
             }
-            self.push(key);
         }
         self.nbrs = nbrs;
         let mut others = std::mem::take(&mut self.others);
@@ -546,16 +641,66 @@ impl Region {
             self.rejected.insert(pair(d, v));
         }
         self.others = others;
-        self.note_peak();
         Ok(())
     }
 
-    /// Collapses in global shortest-first order until the next edge is not the region's to
-    /// take: the B-tree's minimum is smaller ([`Stop::Bound`]), or it has an end outside the
-    /// region ([`Stop::Boundary`]), or no pending edge is left ([`Stop::Exhausted`]).
-    pub fn run(&mut self, store: &mut impl Store) -> Result<Stop> {
+    fn find(&mut self, v: u32) -> u32 {
+        let mut root = v;
+        while let Some(&up) = self.union_find.get(&root).filter(|&&up| up != root) {
+            root = up;
+        }
+        let mut x = v;
+        while x != root {
+            x = self.union_find.insert(x, root).unwrap_or(root);
+        }
+        root
+    }
+
+    fn union(&mut self, a: u32, b: u32) {
+        let (ra, rb) = (self.find(a), self.find(b));
+        if ra != rb {
+            self.union_find.insert(ra.max(rb), ra.min(rb));
+            self.components -= 1;
+        }
+    }
+
+    /// One batch's work, in global shortest-first order (module docs):
+    /// 1. Spanning: while [`Self::committed_bytes`] stays within `span_fraction` of the budget,
+    ///    take the store's smallest pending edge as a spanning edge and load its ends, growing
+    ///    the sub-meshes (connected components of loaded vertices).
+    /// 2. Collapsing: take the smallest pending edge overall, from the heap or the B-tree.
+    ///    Both ends loaded: collapse it or reject it. Otherwise load the missing ends first (a
+    ///    boundary edge whose loaded end moved, or an edge still in the B-tree); if the budget
+    ///    cannot hold them, stop with [`Stop::Budget`].
+    ///
+    /// Returns when no pending edge is left or a needed load does not fit. A fresh region always
+    /// makes progress: the store's smallest edge is loaded first (or the budget is too small for
+    /// it: an error) and is the first one examined.
+    pub fn run(&mut self, span_fraction: f64, store: &mut impl Store) -> Result<Stop> {
+        let span_limit = (self.budget_bytes as f64 * span_fraction.clamp(0.0, 1.0)) as u64;
+        let fresh = self.loaded == 0;
+        let mut spanned = 0u64;
+        while let Some(key) = store.pending_min()? {
+            let (a, b) = key_ends(key);
+            if self.is_loaded(a) && self.is_loaded(b) {
+                return Err(internal(format!("edge ({a}, {b}) is in the B-tree with both ends loaded")));
+            }
+            let limit = if fresh && spanned == 0 { self.budget_bytes } else { span_limit };
+            if !self.load(&[a, b], limit, store)? {
+                break;
+            }
+            spanned += 1;
+        }
+        if fresh && spanned == 0 && store.pending_min()?.is_some() {
+            return Err(Error::MemoryBudget {
+                budget_bytes: self.budget_bytes,
+                problem: "it cannot hold the neighbourhood of the shortest edge".into(),
+            });
+        }
+        self.stats.sub_meshes += self.components;
+
         // A lower bound of the B-tree's minimum: deletions only raise the true minimum, and
-        // insertions (re-pushed edges outside the region) lower this one as they happen.
+        // insertions (re-examined edges outside the region) lower this one as they happen.
         let mut bound = store.pending_min()?;
         let mut steps = 0u64;
         loop {
@@ -563,22 +708,35 @@ impl Region {
             if steps.is_multiple_of(4096) {
                 crate::cancel::check()?;
             }
-            let Some(&Reverse(key)) = self.heap.peek() else {
-                return Ok(Stop::Exhausted);
+            let top = match self.heap.peek() {
+                Some(&Reverse(key)) => {
+                    let (a, b) = key_ends(key);
+                    if self.slot(a).is_none() || self.slot(b).is_none() {
+                        self.heap.pop(); // stale: an end was collapsed
+                        continue;
+                    }
+                    Some(key)
+                }
+                None => None,
+            };
+            if top.is_none() || bound.is_some_and(|m| top.is_some_and(|k| k > m)) {
+                bound = store.pending_min()?;
+            }
+            let (key, in_heap) = match (top, bound) {
+                (None, None) => return Ok(Stop::Exhausted),
+                (Some(k), Some(m)) if m < k => (m, false),
+                (None, Some(m)) => (m, false),
+                (Some(k), _) => (k, true),
             };
             let (a, b) = key_ends(key);
-            let (Some(sa), Some(sb)) = (self.slot(a), self.slot(b)) else {
-                self.heap.pop(); // stale: an end was collapsed
-                continue;
-            };
-            if bound.is_some_and(|m| key > m) {
-                bound = store.pending_min()?;
-                if bound.is_some_and(|m| key > m) {
-                    return Ok(Stop::Bound);
+            if !self.is_loaded(a) || !self.is_loaded(b) {
+                if !self.load(&[a, b], self.budget_bytes, store)? {
+                    return Ok(Stop::Budget);
                 }
+                continue; // the edge is in the heap now
             }
-            if !self.verts[sa].loaded || !self.verts[sb].loaded {
-                return Ok(Stop::Boundary);
+            if !in_heap {
+                return Err(internal(format!("edge ({a}, {b}) is in the B-tree with both ends loaded")));
             }
             self.heap.pop();
             self.heap_live -= 1;
@@ -657,12 +815,16 @@ impl Region {
             let nbrs = std::mem::take(&mut self.nbrs);
             for &c in nbrs.iter().filter(|&&c| c != other) {
                 ring.push(c);
+                let loaded = self.is_loaded(c);
+                if !loaded {
+                    self.boundary = self.boundary.saturating_sub(1);
+                }
                 if self.rejected.remove(&pair(x, c)) {
                     self.rejected.remove(&pair(c, x));
-                } else if self.is_loaded(c) {
+                } else if loaded {
                     self.heap_live -= 1; // internal: its heap entry goes stale
                 } else if !store.take_pending(self.key_of(x, c)?)? {
-                    self.heap_live -= 1; // a changed boundary edge, in the heap
+                    self.heap_live -= 1; // a renewed boundary edge, in the heap
                 }
             }
             self.nbrs = nbrs;
@@ -719,6 +881,8 @@ impl Region {
         self.list_bytes += cost::list(survivors.capacity());
         let ps = self.new_vert_slot(VertSlot { id: p, loaded: true, state, tris: survivors });
         self.loaded += 1;
+        let root = self.find(s); // s and v are in one sub-mesh: their edge joined them
+        self.union_find.insert(p, root);
         store.remove_vertex(s)?;
         store.remove_vertex(v)?;
 
@@ -726,6 +890,9 @@ impl Region {
         self.neighbours(ps);
         let nbrs = std::mem::take(&mut self.nbrs);
         for &c in &nbrs {
+            if !self.is_loaded(c) {
+                self.boundary += 1;
+            }
             let key = self.key_of(p, c)?;
             self.push(key);
         }
@@ -814,7 +981,10 @@ impl Region {
         self.free_tris.clear();
         self.tri_index.clear();
         self.heap_live = 0;
+        self.boundary = 0;
         self.rejected.clear();
+        self.union_find.clear();
+        self.components = 0;
         self.list_bytes = 0;
         self.loaded = 0;
         Ok(())

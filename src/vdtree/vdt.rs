@@ -286,3 +286,46 @@ impl VdtFile {
         self.nodes().iter().enumerate().filter(|(_, n)| n.parent == NONE).map(|(id, _)| id as u32)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header() -> VdtHeader {
+        VdtHeader {
+            metric: VdtMetric::Quadric,
+            leaves: 3,
+            nodes: 5,
+            triangles: 1,
+            base_triangles: 0,
+            bounds: Bounds { min: [0.0, -1.0, 2.0], max: [1.0, 0.5, 3.0] },
+        }
+    }
+
+    #[test]
+    fn header_round_trips_and_sizes_the_file() {
+        let h = header();
+        let bytes = h.encode();
+        assert_eq!(&bytes[..8], &MAGIC);
+        assert_eq!(h.file_bytes(), 128 + 5 * 48 + 12);
+        assert_eq!(VdtHeader::decode(Path::new("x.vdt"), &bytes, h.file_bytes()).unwrap(), h);
+    }
+
+    #[test]
+    fn inconsistent_headers_are_refused() {
+        let p = Path::new("x.vdt");
+        let err = |h: VdtHeader| VdtHeader::decode(p, &h.encode(), h.file_bytes()).unwrap_err().to_string();
+        assert_eq!(
+            err(VdtHeader { nodes: 6, ..header() }),
+            "x.vdt: corrupt header: 6 nodes is more than a binary forest on 3 leaves has"
+        );
+        assert_eq!(err(VdtHeader { nodes: 2, ..header() }), "x.vdt: corrupt header: 2 nodes for 3 leaves");
+        assert_eq!(err(VdtHeader { base_triangles: 2, ..header() }), "x.vdt: corrupt header: 2 base triangles of 1");
+        let mut b = header().encode();
+        b[12] = 7;
+        assert_eq!(
+            VdtHeader::decode(p, &b, header().file_bytes()).unwrap_err().to_string(),
+            "x.vdt: unknown metric code 7"
+        );
+    }
+}
