@@ -57,7 +57,7 @@ use redb::{Database, Durability, ReadableDatabase, ReadableTable, ReadableTableM
 use serde::Serialize;
 
 use super::simplify::{
-    add_quadrics, collapse_options, cost, key_ends, plane_quadric, EdgeKey, Quadric, Region, Store, VertexState,
+    add_quadrics, collapse_options, cost, plane_quadric, EdgeKey, Quadric, Region, Store, VertexState,
 };
 use super::vdt::{write_header, VdtHeader, VdtMetric, HEADER_BYTES, NODE_BYTES};
 use super::{VdtNode, NONE};
