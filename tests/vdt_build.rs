@@ -63,9 +63,12 @@ fn build_lib(name: &str, memory_bytes: u64, metric: VdtMetric) -> Built {
 fn build_cli(name: &str, memory: &str, metric: &str) -> Built {
     let dir = scratch();
     let path = dir.path().join("out.vdt");
+    // OUTPUT is the meta-node file; --vdt keeps the forest this test reads.
     let out = Command::new(env!("CARGO_BIN_EXE_relief"))
         .args(["mesh", "build"])
         .arg(real_mesh(name))
+        .arg(dir.path().join("out.rmn"))
+        .arg("--vdt")
         .arg(&path)
         .args(["--memory", memory, "--metric", metric, "--json"])
         .output()
