@@ -43,6 +43,7 @@ use serde::Serialize;
 
 use super::{VdtNode, VdtTriangle, NONE};
 use crate::error::{Error, IoContext, Result};
+use crate::format::{get_u32, get_u64, put_f64, put_u32, put_u64};
 use crate::mesh::Bounds;
 
 pub const MAGIC: [u8; 8] = *b"\x89RLFMNT\n";
@@ -729,24 +730,6 @@ fn decode_header(path: &Path, b: &[u8], len: u64) -> Result<MetaHeader> {
         None => return Err(bad("DATA size overflows".into())),
     }
     Ok(h)
-}
-
-fn put_u32(b: &mut [u8], at: usize, v: u32) {
-    b[at..at + 4].copy_from_slice(&v.to_le_bytes());
-}
-fn put_u64(b: &mut [u8], at: usize, v: u64) {
-    b[at..at + 8].copy_from_slice(&v.to_le_bytes());
-}
-fn put_f64(b: &mut [u8], at: usize, v: f64) {
-    b[at..at + 8].copy_from_slice(&v.to_le_bytes());
-}
-fn get_u32(b: &[u8], at: usize) -> u32 {
-    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
-}
-fn get_u64(b: &[u8], at: usize) -> u64 {
-    let mut a = [0u8; 8];
-    a.copy_from_slice(&b[at..at + 8]);
-    u64::from_le_bytes(a)
 }
 
 #[cfg(test)]
