@@ -18,7 +18,7 @@ use crate::error::{Error, Result};
 use crate::mesh::Bounds;
 use crate::render::gpu::Gpu;
 use crate::render::mesh_shade::{MeshShadeParams, AMBIENT, HEADLIGHT, SUN};
-use crate::render::offscreen::depth_clear;
+use crate::render::offscreen::frame_pass;
 use crate::render::pipeline::{build_pipeline, depth_state, uniform_entry, PipelineSpec};
 use crate::render::vertex_buffer::VertexBuffer;
 
@@ -277,19 +277,7 @@ impl MeshRenderer {
         style: MeshStyle,
     ) -> u64 {
         gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.frame_uniform(view, style)));
-        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("relief mesh frame"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: colour,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
-            })],
-            depth_stencil_attachment: Some(depth_clear(depth)),
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
+        let mut pass = frame_pass(encoder, "relief mesh frame", colour, depth);
         pass.set_bind_group(0, &self.bind_group, &[]);
         if self.vertex_count >= 3 {
             pass.set_pipeline(&self.mesh_pipeline);

@@ -36,6 +36,28 @@ pub(crate) fn depth_clear(view: &wgpu::TextureView) -> wgpu::RenderPassDepthSten
     }
 }
 
+/// The render pass of a frame: `colour` cleared to black, `depth` to the far plane.
+pub(crate) fn frame_pass<'e>(
+    encoder: &'e mut wgpu::CommandEncoder,
+    label: &str,
+    colour: &wgpu::TextureView,
+    depth: &wgpu::TextureView,
+) -> wgpu::RenderPass<'e> {
+    encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some(label),
+        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+            view: colour,
+            depth_slice: None,
+            resolve_target: None,
+            ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
+        })],
+        depth_stencil_attachment: Some(depth_clear(depth)),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    })
+}
+
 /// Copies a whole 2-D texture with `bytes_per_texel` into memory, rows tightly packed.
 fn read_texture(gpu: &Gpu, texture: &wgpu::Texture, bytes_per_texel: u32) -> Result<Vec<u8>> {
     let (w, h) = (texture.width(), texture.height());

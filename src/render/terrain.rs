@@ -15,7 +15,7 @@ use crate::progress::Progress;
 use crate::refine::{Morph, Strip, StripVertex};
 use crate::render::gpu::Gpu;
 use crate::render::heights::{GpuHeights, HeightTiling};
-use crate::render::offscreen::depth_clear;
+use crate::render::offscreen::{depth_clear, frame_pass};
 use crate::render::pipeline::{build_pipeline, depth_state, uniform_entry, PipelineSpec};
 use crate::render::shade::ShadeParams;
 use crate::render::vertex_buffer::VertexBuffer;
@@ -432,19 +432,7 @@ impl TerrainRenderer {
     ) -> u64 {
         let uniform = self.frame_uniform(&view.camera, view.near_m, 0);
         gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&uniform));
-        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("relief frame"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: colour,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Store },
-            })],
-            depth_stencil_attachment: Some(depth_clear(depth)),
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
+        let mut pass = frame_pass(encoder, "relief frame", colour, depth);
         pass.set_bind_group(0, &self.bind_group, &[]);
         let n = self.strip_len;
         if n >= 3 {

@@ -275,10 +275,7 @@ impl<S: MetaStore> Navigator<S> {
                 match self.try_split(key)? {
                     Outcome::Done => {
                         stats.splits += 1;
-                        let b = key + self.active[&key].node.leaves;
-                        // The children, and the neighbours a dependency may have held back.
-                        self.push_around(key);
-                        self.push_around(b);
+                        self.push_split(key);
                     }
                     Outcome::Miss => stats.misses += self.missed.insert(key) as u64,
                     Outcome::Blocked(blocker) => {
@@ -329,9 +326,7 @@ impl<S: MetaStore> Navigator<S> {
                 Outcome::Done => {
                     stats.splits += 1;
                     self.forced.insert(id);
-                    let b = key + self.active[&key].node.leaves;
-                    self.push_around(key);
-                    self.push_around(b);
+                    self.push_split(key);
                     return Ok(true);
                 }
                 Outcome::Miss => {
@@ -351,6 +346,14 @@ impl<S: MetaStore> Navigator<S> {
             }
         }
         Ok(false)
+    }
+
+    /// After the split of the node at `key`: queues both children, and the neighbours a
+    /// dependency may have held back.
+    fn push_split(&mut self, key: u32) {
+        let second = key + self.active[&key].node.leaves;
+        self.push_around(key);
+        self.push_around(second);
     }
 
     /// Queues the node at `key` and its neighbours for another test.
