@@ -429,8 +429,9 @@ enum MeshCommand {
     },
     /// Build the view-dependence forest of a mesh out of core (El-Sana & Chiang's spanned
     /// sub-mesh simplification): shortest-first edge collapses in exactly the order of an
-    /// in-memory build, within a memory budget, written as a VDT file (replaced atomically).
-    /// Scratch files go beside OUTPUT and are removed afterwards.
+    /// in-memory build, within a memory budget; then blocked into page-sized meta-nodes and
+    /// written as a meta-node file (replaced atomically). Scratch files (the edge B-tree, the
+    /// VDT forest unless --vdt keeps it) go beside OUTPUT and are removed afterwards.
     Build {
         /// Mesh file (OFF, PLY, OBJ; optionally gzip'd).
         input: PathBuf,
