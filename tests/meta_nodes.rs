@@ -200,3 +200,20 @@ fn mesh_build_and_fly_commands() {
         assert!(err.trim().lines().count() == 1 && err.contains(what), "{args:?}: {err}");
     }
 }
+
+/// `relief mesh fly` in a window under Xvfb (the buffer pool's I/O thread beside the event loop):
+/// it opens, takes the shared keys (record, freeze, wireframe, screenshot) and closes on Escape.
+#[test]
+fn mesh_fly_window_runs_under_xvfb() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("bunny.rmn");
+    let o = common::relief()
+        .args(["mesh", "build"])
+        .arg(common::mesh("bunny.off"))
+        .arg(&out)
+        .args(["--memory", "64M", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    common::window_session(&["mesh".as_ref(), "fly".as_ref(), out.as_os_str(), "--memory".as_ref(), "2M".as_ref()]);
+}
