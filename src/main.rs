@@ -412,9 +412,11 @@ enum MeshCommand {
         /// Evict the file from the page cache first and turn off readahead (a cold start).
         #[arg(long)]
         cold: bool,
-        /// ext: prefetch only the parents of the meta-nodes in use, not also their children.
-        #[arg(long)]
-        parent_prefetch_only: bool,
+        /// ext: which meta-nodes to prefetch. paper: the parent and all children of every
+        /// meta-node in use (El-Sana & Chiang); parent: only the parent; frontier: for every
+        /// active node, the blocks its split or its parent's collapse would read.
+        #[arg(long, value_enum, default_value = "frontier")]
+        prefetch: PrefetchArg,
         #[command(flatten)]
         show: MeshShowArgs,
     },
@@ -643,6 +645,25 @@ impl From<VdtMetricArg> for relief::vdtree::VdtMetric {
         match m {
             VdtMetricArg::Length => relief::vdtree::VdtMetric::Length,
             VdtMetricArg::Quadric => relief::vdtree::VdtMetric::Quadric,
+        }
+    }
+}
+
+/// `--prefetch` of `relief mesh fly`.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum PrefetchArg {
+    Paper,
+    Parent,
+    Frontier,
+}
+
+impl From<PrefetchArg> for relief::vdtree::navigate::Prefetch {
+    fn from(p: PrefetchArg) -> Self {
+        use relief::vdtree::navigate::Prefetch;
+        match p {
+            PrefetchArg::Paper => Prefetch::Paper,
+            PrefetchArg::Parent => Prefetch::Parent,
+            PrefetchArg::Frontier => Prefetch::Frontier,
         }
     }
 }
@@ -1260,7 +1281,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let mut source = StaticMesh::new(&mesh)?;
             show_mesh(&mut source, &input, "static", flight, show)
         }
-        Command::Mesh { kind: MeshCommand::Fly { file, mode, memory, cap, cold, parent_prefetch_only, show } } => {
+        Command::Mesh { kind: MeshCommand::Fly { file, mode, memory, cap, cold, prefetch, show } } => {
             use relief::vdtree::metanode::MetaNodeFile;
             use relief::vdtree::navigate::{ExtStore, NavOptions, Navigator, VirtStore};
             use relief::vdtree::source::NavSource;
@@ -1292,8 +1313,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 NavMode::Ext => {
                     let store = ExtStore::new(meta.clone(), memory_bytes)?;
                     let holders = store.pool().holders();
-                    let nav =
-                        Navigator::new(&meta, store, NavOptions { parent_prefetch_only, ..NavOptions::default() })?;
+                    let nav = Navigator::new(
+                        &meta,
+                        store,
+                        NavOptions { prefetch: prefetch.into(), ..NavOptions::default() },
+                    )?;
                     let _cap = apply_cap()?;
                     let mut source = NavSource::new(nav, bounds);
                     let name = format!("meta-node trees, ext, {holders} holders of {} B", meta.header().holder_bytes);

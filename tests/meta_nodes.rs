@@ -13,7 +13,7 @@ use relief::flight::{orbit_box, OrbitOptions};
 use relief::mesh::read_mesh;
 use relief::vdtree::build::{build_vdt_from_mesh, BuildOptions};
 use relief::vdtree::metanode::{write_metanode_file, BlockingOptions, Forest, MetaNodeFile};
-use relief::vdtree::navigate::{ExtStore, MetaStore, NavOptions, Navigator, VirtStore};
+use relief::vdtree::navigate::{ExtStore, MetaStore, NavOptions, Navigator, Prefetch, VirtStore};
 use relief::vdtree::{VdtFile, VdtMetric};
 
 /// Builds `mesh` with `memory_bytes` into `dir/name.vdt` and `dir/name.rmn`.
@@ -116,24 +116,27 @@ fn a_tiny_buffer_pool_never_evicts_a_meta_node_in_use() {
     // A pool of 1/16 of the meta-nodes: the far views release blocks, the near ones want them back.
     let holders = f.header().metanodes as usize / 16;
     assert!(holders > f.header().root_metanodes as usize + 8);
-    let store = ExtStore::with_holders(f.clone(), holders).unwrap();
-    let mut nav = Navigator::new(&f, store, NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
-    let (mut misses, mut adapts) = (0, 0);
-    for (k, (cam, tol)) in random_cameras(&f, 200, 11).iter().enumerate() {
-        let s = nav.update(cam, *tol).unwrap();
-        misses += s.misses;
-        adapts += s.splits + s.collapses;
-        nav.check().unwrap_or_else(|e| panic!("view {k}: {e}"));
-        nav.store().pool().check_invariants().unwrap_or_else(|e| panic!("view {k}: {e}"));
-        if k % 4 == 0 {
-            nav.store().pool().drain().unwrap();
+    // Every prefetch policy: they reference different blocks, the pool's rules are the same.
+    for prefetch in [Prefetch::Paper, Prefetch::Parent, Prefetch::Frontier] {
+        let store = ExtStore::with_holders(f.clone(), holders).unwrap();
+        let mut nav = Navigator::new(&f, store, NavOptions { check_foldover: true, prefetch }).unwrap();
+        let (mut misses, mut adapts) = (0, 0);
+        for (k, (cam, tol)) in random_cameras(&f, 200, 11).iter().enumerate() {
+            let s = nav.update(cam, *tol).unwrap();
+            misses += s.misses;
+            adapts += s.splits + s.collapses;
+            nav.check().unwrap_or_else(|e| panic!("{prefetch:?}, view {k}: {e}"));
+            nav.store().pool().check_invariants().unwrap_or_else(|e| panic!("{prefetch:?}, view {k}: {e}"));
+            if k % 4 == 0 {
+                nav.store().pool().drain().unwrap();
+            }
         }
+        let stats = nav.store().pool().stats();
+        assert!(misses > 0 && adapts > 0, "{prefetch:?}: {misses} misses, {adapts} adapts");
+        assert!(stats.evictions > 0 && stats.second_chance_hits > 0, "{prefetch:?}: {stats:?}");
+        assert_eq!(nav.store().second_chance_hits(), stats.second_chance_hits);
+        assert_eq!(nav.foldovers(), 0, "{prefetch:?}");
     }
-    let stats = nav.store().pool().stats();
-    assert!(misses > 0 && adapts > 0, "{misses} misses, {adapts} adapts");
-    assert!(stats.evictions > 0 && stats.second_chance_hits > 0, "{stats:?}");
-    assert_eq!(nav.store().second_chance_hits(), stats.second_chance_hits);
-    assert_eq!(nav.foldovers(), 0);
 }
 
 #[test]

@@ -130,16 +130,30 @@ struct Tri {
     positions: [[f32; 3]; 3],
 }
 
-/// Options that cost time, for tests.
+/// Which meta-nodes the navigator references (the buffer pool prefetches a referenced block
+/// and keeps it off the free list while referenced).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Prefetch {
+    /// The paper's (§3.3.3): every meta-node in use references its parent and all its children.
+    /// A block of L levels can have up to 2^L child blocks, so with a pool smaller than their
+    /// sum the prefetches evict one another (BENCHMARKS.md, "Meta-node trees").
+    #[default]
+    Paper,
+    /// Only the parent of each meta-node in use.
+    Parent,
+    /// Per active node: the block of its children and the block of its parent when they are not
+    /// its own, i.e. exactly the blocks its next split or its parent's collapse would read. At
+    /// most two references per active node, so the prefetch grows with the front, not the tree.
+    Frontier,
+}
+
+/// Navigation options.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NavOptions {
     /// Compare the normal of every triangle a split or collapse moves, before and after; flips
-    /// are counted in [`Navigator::foldovers`].
+    /// are counted in [`Navigator::foldovers`] (costs time; for tests).
     pub check_foldover: bool,
-    /// Reference (prefetch) only the parent of each meta-node in use, not its children too as
-    /// the paper does. With a pool smaller than the children's sum the children's prefetches
-    /// evict one another (see BENCHMARKS.md, "Meta-node trees").
-    pub parent_prefetch_only: bool,
+    pub prefetch: Prefetch,
 }
 
 /// The navigator: active nodes and triangles over a [`MetaStore`].
@@ -538,6 +552,7 @@ impl<S: MetaStore> Navigator<S> {
         if *usage == 1 {
             self.reference_around(meta, 1);
         }
+        self.reference_frontier(&node, meta, 1);
     }
 
     fn deactivate(&mut self, key: u32) -> Active {
@@ -552,18 +567,38 @@ impl<S: MetaStore> Navigator<S> {
         if last {
             self.reference_around(a.meta, -1);
         }
+        self.reference_frontier(&a.node, a.meta, -1);
         a
     }
 
-    /// An active meta-node references its parent and children, so they are prefetched.
+    /// [`Prefetch::Paper`] and [`Prefetch::Parent`]: a meta-node in use references its parent
+    /// (and its children).
     fn reference_around(&mut self, meta: u32, delta: i32) {
+        let children = match self.options.prefetch {
+            Prefetch::Paper => true,
+            Prefetch::Parent => false,
+            Prefetch::Frontier => return,
+        };
         let e = self.mnt[meta as usize];
         if e.parent != NONE {
             self.store.reference(e.parent, delta);
         }
-        if !self.options.parent_prefetch_only {
+        if children {
             for c in e.first_child..e.first_child + e.child_count {
                 self.store.reference(c, delta);
+            }
+        }
+    }
+
+    /// [`Prefetch::Frontier`]: an active node references the blocks of its children and of its
+    /// parent that are not its own block.
+    fn reference_frontier(&mut self, node: &MnNode, meta: u32, delta: i32) {
+        if self.options.prefetch != Prefetch::Frontier {
+            return;
+        }
+        for other in [node.child_meta[0], node.child_meta[1], node.parent_meta] {
+            if other != NONE && other != meta {
+                self.store.reference(other, delta);
             }
         }
     }
@@ -1109,29 +1144,32 @@ mod tests {
             }
             assert_eq!(ext.active_ids(), virt.active_ids());
         }
-        // A tiny pool: misses happen, the bookkeeping stays right, nothing in use is evicted.
-        let mut tiny = Navigator::new(
-            &f,
-            ExtStore::with_holders(f.clone(), 16).unwrap(),
-            NavOptions { check_foldover: true, ..NavOptions::default() },
-        )
-        .unwrap();
-        let mut misses = 0;
-        for (k, (cam, tol)) in views.iter().enumerate() {
-            let s = tiny.update(cam, *tol).unwrap();
-            misses += s.misses;
-            tiny.check().unwrap();
-            tiny.store().pool().check_invariants().unwrap();
-            let mut got = tiny.triangle_leaves();
-            got.sort();
-            assert_eq!(got, expected(&nodes, &tris, base, &tiny.active_ids()));
-            if k % 3 == 0 {
-                tiny.store().pool().drain().unwrap();
+        // A tiny pool: misses happen, the bookkeeping stays right, nothing in use is evicted,
+        // whichever blocks are prefetched.
+        for prefetch in [Prefetch::Paper, Prefetch::Parent, Prefetch::Frontier] {
+            let mut tiny = Navigator::new(
+                &f,
+                ExtStore::with_holders(f.clone(), 16).unwrap(),
+                NavOptions { check_foldover: true, prefetch },
+            )
+            .unwrap();
+            let mut misses = 0;
+            for (k, (cam, tol)) in views.iter().enumerate() {
+                let s = tiny.update(cam, *tol).unwrap();
+                misses += s.misses;
+                tiny.check().unwrap();
+                tiny.store().pool().check_invariants().unwrap();
+                let mut got = tiny.triangle_leaves();
+                got.sort();
+                assert_eq!(got, expected(&nodes, &tris, base, &tiny.active_ids()));
+                if k % 3 == 0 {
+                    tiny.store().pool().drain().unwrap();
+                }
             }
+            assert!(misses > 0, "16 holders for {metas} meta-nodes must miss");
+            assert_eq!(tiny.foldovers(), 0);
+            let stats = tiny.store().pool().stats();
+            assert!(stats.disk_reads > 8 && stats.second_chance_hits > 0, "{prefetch:?}: {stats:?}");
         }
-        assert!(misses > 0, "16 holders for {metas} meta-nodes must miss");
-        assert_eq!(tiny.foldovers(), 0);
-        let stats = tiny.store().pool().stats();
-        assert!(stats.disk_reads > 8 && stats.second_chance_hits > 0, "{stats:?}");
     }
 }
