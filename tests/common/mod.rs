@@ -6,6 +6,8 @@ use std::sync::{Mutex, OnceLock};
 
 use relief::render::Gpu;
 
+pub mod crack;
+
 /// The real DEMs in ../shared/data/dem (see its README).
 pub const REAL_DEMS: [&str; 6] = [
     "zurich_25m_i16.tif",
