@@ -169,3 +169,59 @@ fn the_largest_grid_is_computed_without_overflow_and_a_larger_one_is_refused_at_
     assert!(e.trim_end().lines().count() == 1 && e.contains("huge.asc"), "{e}");
     assert!(!out.exists());
 }
+
+/// A conversion killed at any moment (SIGKILL: no clean-up runs) leaves the output path holding
+/// either the old file or the new one, each whole (it verifies); never a mix or a half file.
+#[test]
+fn a_conversion_killed_at_any_moment_leaves_the_old_file_or_the_new_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("out.relief");
+    // The old file: a small real DEM. The new one: a SYNTHETIC 1025² DEM (a conversion of a
+    // few hundred ms here, so kills land in every phase).
+    let o = common::relief()
+        .arg("convert")
+        .arg(common::dem("hugo_site_nodata.asc"))
+        .arg(&out)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let old = std::fs::read(&out).unwrap();
+    let synth = d.join("synthetic_1025.tif");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_relief-synth"))
+        .arg(&synth)
+        .args(["--size", "1025", "--seed", "3"])
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let new_path = d.join("new.relief");
+    let o = common::relief().arg("convert").arg(&synth).arg(&new_path).arg("--quiet").output().unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let new = std::fs::read(&new_path).unwrap();
+    let t0 = std::time::Instant::now();
+    let o = common::relief().arg("convert").arg(&synth).arg(d.join("timing.relief")).arg("--quiet").output().unwrap();
+    assert!(o.status.success());
+    let full_ms = t0.elapsed().as_millis() as u64;
+    let (mut saw_old, mut saw_new) = (0, 0);
+    for k in 0..24u64 {
+        let mut child = common::relief().arg("convert").arg(&synth).arg(&out).arg("--quiet").spawn().unwrap();
+        // Spread the kills over the whole conversion (and a little past it).
+        std::thread::sleep(std::time::Duration::from_millis(k * (full_ms + 50) / 23));
+        let _ = child.kill();
+        let _ = child.wait();
+        let now = std::fs::read(&out).unwrap();
+        if now == old {
+            saw_old += 1;
+        } else if now == new {
+            saw_new += 1;
+            // Put the old file back for the next round.
+            std::fs::write(&out, &old).unwrap();
+        } else {
+            panic!("kill {k}: the output is neither the old file nor the new one ({} bytes)", now.len());
+        }
+        let t = TerrainFile::open(&out).unwrap();
+        assert!(verify(&t, Progress::hidden()).unwrap().ok);
+    }
+    assert!(saw_old > 0 && saw_new > 0, "kills landed before ({saw_old}) and after ({saw_new}) the rename");
+}
