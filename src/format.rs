@@ -299,6 +299,7 @@ impl TerrainFile {
         // what we read: relief never writes a file in place (conversion writes a temporary file
         // and renames it over the old name), so this happens only if someone else does so.
         let map = unsafe { Mmap::map(&file) }.at(path)?;
+        crate::sigbus::note_mapped(path);
         if map.len() as u64 != file_len {
             return Err(Error::Truncated { path: path.into(), expected: file_len, found: map.len() as u64 });
         }

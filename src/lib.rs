@@ -37,5 +37,6 @@ pub mod progress;
 pub mod refine;
 pub mod refine_report;
 pub mod render;
+pub mod sigbus;
 pub mod vdtree;
 pub mod window;

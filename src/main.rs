@@ -1495,6 +1495,8 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     // Ctrl-C: ask long loops to stop, so temporary files are removed on the way out.
     let _ = ctrlc::set_handler(relief::cancel::request);
+    // A mapped file truncated under us: a one-line error, not a core dump.
+    relief::sigbus::install();
     match run(cli) {
         Ok(code) => code,
         Err(e) => {

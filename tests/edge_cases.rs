@@ -225,3 +225,59 @@ fn a_conversion_killed_at_any_moment_leaves_the_old_file_or_the_new_one() {
     }
     assert!(saw_old > 0 && saw_new > 0, "kills landed before ({saw_old}) and after ({saw_new}) the rename");
 }
+
+/// A terrain file truncated by another process during a flight: the next read past its new end
+/// faults (SIGBUS), and relief stops with one line naming the file and exit status 1 — no core
+/// dump, no panic.
+#[test]
+fn a_terrain_truncated_during_a_flight_stops_with_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let terrain = d.join("zurich.relief");
+    let o = common::relief()
+        .arg("convert")
+        .arg(common::dem("zurich_25m_i16.tif"))
+        .arg(&terrain)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let path = d.join("long.json");
+    let o = common::relief()
+        .args(["path", "flyover"])
+        .arg(&terrain)
+        .args(["--frames", "20000", "--out"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let mut child = common::relief()
+        .arg("fly")
+        .arg(&terrain)
+        .arg("--path")
+        .arg(&path)
+        .args(["--width", "64", "--height", "40", "--quiet"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(2500));
+    assert!(child.try_wait().unwrap().is_none(), "the flight ended before the truncation");
+    std::fs::OpenOptions::new().write(true).open(&terrain).unwrap().set_len(4096).unwrap();
+    let t0 = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if t0.elapsed() > std::time::Duration::from_secs(60) {
+            let _ = child.kill();
+            panic!("the flight went on for 60 s over a truncated file");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    let mut e = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut e).unwrap();
+    assert_eq!(status.code(), Some(1), "{status:?}: {e}");
+    assert!(e.trim_end().lines().count() == 1 && e.contains("zurich.relief") && e.contains("SIGBUS"), "{e}");
+    assert!(!e.contains("panicked"), "{e}");
+}

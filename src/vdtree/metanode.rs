@@ -584,6 +584,7 @@ impl MetaNodeFile {
         // inode). Another process truncating the file under us could still fault a read; that is
         // the usual caveat of mapped files, and the sizes are validated here against the length.
         let map = unsafe { Mmap::map(&file) }.at(path)?;
+        crate::sigbus::note_mapped(path);
         let header = decode_header(path, &map, len)?;
         let bad = |problem: String| Error::BadHeader { path: path.to_path_buf(), problem };
         let mnt_bytes = header.metanodes as usize * std::mem::size_of::<MntEntry>();

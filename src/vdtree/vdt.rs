@@ -179,6 +179,7 @@ impl VdtFile {
         // what we read: relief never writes a VDT file in place (build writes a temporary file and
         // renames it over the old name), so this happens only if someone else does so.
         let map = unsafe { Mmap::map(&file) }.at(path)?;
+        crate::sigbus::note_mapped(path);
         if map.len() as u64 != file_len {
             return Err(Error::Truncated { path: path.into(), expected: file_len, found: map.len() as u64 });
         }
