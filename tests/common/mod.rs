@@ -147,15 +147,31 @@ pub fn window_session(args: &[&std::ffi::OsStr]) {
         kill -0 $pid 2>/dev/null && { echo "Escape did not close the window"; kill $pid; exit 4; }
         wait $pid
     "#;
-    let o = Command::new("xvfb-run")
-        .args(["-a", "-s", "-screen 0 800x600x24", "sh", "-c", script, "sh"])
-        .args(args)
-        .env("RELIEF", env!("CARGO_BIN_EXE_relief"))
-        .env("OUT", &out)
-        .env("XDG_RUNTIME_DIR", &rt)
-        .output()
-        .unwrap();
-    let e = stderr_of(&o);
+    // `xvfb-run -a` picks the first free display from 99 up, and two test binaries (or another
+    // user of the machine) starting at once can race for it: then the window cannot connect.
+    // Start from a display number of our own, and try again on that failure only.
+    let mut attempt = 0u32;
+    let (o, e) = loop {
+        let display = 100 + (std::process::id() % 400) + 37 * attempt;
+        let o = Command::new("xvfb-run")
+            .args(["-a", "-n", &display.to_string(), "-s", "-screen 0 800x600x24", "sh", "-c", script, "sh"])
+            .args(args)
+            .env("RELIEF", env!("CARGO_BIN_EXE_relief"))
+            .env("OUT", &out)
+            .env("XDG_RUNTIME_DIR", &rt)
+            .output()
+            .unwrap();
+        let e = stderr_of(&o);
+        attempt += 1;
+        if attempt < 3 && !o.status.success() && e.contains("connection to X server") {
+            eprintln!("note: the X server was not reachable (attempt {attempt}); trying another display");
+            for f in std::fs::read_dir(&out).unwrap() {
+                let _ = std::fs::remove_file(f.unwrap().path());
+            }
+            continue;
+        }
+        break (o, e);
+    };
     assert!(o.status.success(), "window flight failed ({:?}): {e}{}", o.status, String::from_utf8_lossy(&o.stdout));
     assert!(!e.contains("panicked"), "{e}");
     let files: Vec<PathBuf> = std::fs::read_dir(&out).unwrap().map(|d| d.unwrap().path()).collect();
