@@ -456,7 +456,7 @@ fn encode_block(forest: &Forest<'_>, plan: &Plan, m: u32, out: &mut Vec<u8>) {
             (node.children.map(|c| plan.meta_of[c as usize]), node.children.map(|c| plan.local_of[c as usize]))
         };
         let tri_start = tris.len() as u16;
-        let range = node.tri_start as usize..(node.tri_start + node.tri_count) as usize;
+        let range = node.tri_start as usize..node.tri_start as usize + node.tri_count as usize;
         if node.children[0] != NONE {
             for t in &forest.triangles[range] {
                 tris.push(t.corners.map(|c| plan.dfs_lo[c as usize]));
@@ -539,7 +539,8 @@ impl<'a> BlockView<'a> {
     }
 
     pub fn triangles_of(&self, node: &MnNode) -> &'a [[u32; 3]] {
-        &self.tris[node.tri_start as usize..(node.tri_start + node.tri_count) as usize]
+        // In usize: the two u16 fields of a node from another view could sum past u16::MAX.
+        &self.tris[node.tri_start as usize..node.tri_start as usize + node.tri_count as usize]
     }
 }
 
@@ -595,7 +596,9 @@ impl MetaNodeFile {
         for (m, e) in mnt.iter().enumerate() {
             let in_data = e.offset >= header.data_offset
                 && e.offset % page == 0
-                && e.offset + e.bytes as u64 <= header.data_offset + header.data_bytes;
+                && e.offset
+                    .checked_add(e.bytes as u64)
+                    .is_some_and(|end| end <= header.data_offset + header.data_bytes);
             let root = (m as u64) < header.root_metanodes;
             let links = (root == (e.parent == NONE))
                 && (root || e.parent < m as u32)

@@ -265,7 +265,11 @@ impl VdtFile {
     /// The triangles that node `id`'s split creates (m(t) = id); empty for leaves.
     pub fn node_triangles(&self, id: u32) -> &[VdtTriangle] {
         let n = &self.nodes()[id as usize];
-        &self.triangles()[n.tri_start as usize..(n.tri_start + n.tri_count) as usize]
+        // A leaf's start is not checked at open (it has no range), so it is not used here.
+        if n.tri_count == 0 {
+            return &[];
+        }
+        &self.triangles()[n.tri_start as usize..n.tri_start as usize + n.tri_count as usize]
     }
 
     /// Input vertices (leaf ids are `0..leaves`).

@@ -1,0 +1,35 @@
+//! The meta-node file: validated open, then every block parsed as navigation reads it.
+#![no_main]
+use libfuzzer_sys::fuzz_target;
+
+#[path = "common.rs"]
+mod common;
+
+fuzz_target!(|data: &[u8]| {
+    let (_dir, path) = common::input_file("in.rmn", data);
+    if let Ok(f) = relief::vdtree::metanode::MetaNodeFile::open(&path) {
+        let _ = f.base_triangles().len();
+        let mut buf = Vec::new();
+        for m in 0..f.mnt().len().min(1 << 12) as u32 {
+            // Both ways navigation reads a block: pread (Ext) and the map (Virt).
+            if f.read_block(m, &mut buf).is_ok() {
+                let bytes: &[u8] = words_as_bytes(&buf);
+                walk(relief::vdtree::navigate::parse_block(&f, m, bytes));
+            }
+            walk(relief::vdtree::navigate::parse_block(&f, m, f.mapped_block(m)));
+        }
+    }
+});
+
+fn walk(view: relief::Result<relief::vdtree::metanode::BlockView<'_>>) {
+    if let Ok(v) = view {
+        for node in v.nodes {
+            let _ = (v.position(node), v.triangles_of(node).len());
+        }
+    }
+}
+
+fn words_as_bytes(words: &[u32]) -> &[u8] {
+    // SAFETY: u32 has no padding and u8 has alignment 1; the length is in bytes.
+    unsafe { std::slice::from_raw_parts(words.as_ptr().cast(), words.len() * 4) }
+}
