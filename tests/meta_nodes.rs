@@ -139,18 +139,25 @@ fn a_tiny_buffer_pool_never_evicts_a_meta_node_in_use() {
     }
 }
 
+/// `relief mesh build bunny.off OUT ARGS… --quiet`, which must succeed.
+fn cli_build_bunny(out: &Path, args: &[&str]) -> std::process::Output {
+    let o = common::relief()
+        .args(["mesh", "build"])
+        .arg(common::mesh("bunny.off"))
+        .arg(out)
+        .args(args)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    o
+}
+
 #[test]
 fn mesh_build_and_fly_commands() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("bunny.rmn");
-    let o = common::relief()
-        .args(["mesh", "build"])
-        .arg(common::mesh("bunny.off"))
-        .arg(&out)
-        .args(["--memory", "1/2", "--json", "--quiet"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let o = cli_build_bunny(&out, &["--memory", "1/2", "--json"]);
     let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     for key in ["leaves", "nodes", "batches", "vdt_bytes", "build_ms", "peak_accounted_bytes", "memory_budget_bytes"] {
         assert!(r[key].is_number(), "{key} missing in {r}");
@@ -210,13 +217,6 @@ fn mesh_build_and_fly_commands() {
 fn mesh_fly_window_runs_under_xvfb() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("bunny.rmn");
-    let o = common::relief()
-        .args(["mesh", "build"])
-        .arg(common::mesh("bunny.off"))
-        .arg(&out)
-        .args(["--memory", "64M", "--quiet"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    cli_build_bunny(&out, &["--memory", "64M"]);
     common::window_session(&["mesh".as_ref(), "fly".as_ref(), out.as_os_str(), "--memory".as_ref(), "2M".as_ref()]);
 }
