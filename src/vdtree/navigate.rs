@@ -21,6 +21,7 @@
 //!   not in memory is abandoned for this frame and counted, and an urgent prefetch is sent.
 
 use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
@@ -86,6 +87,20 @@ impl MetaStore for VirtStore<'_> {
     fn pages_read(&self) -> u64 {
         crate::mem::page_faults().0 - self.faults_at_start
     }
+}
+
+/// An inconsistency in a meta-node file's blocks found while navigating, naming the file.
+fn corrupt(path: &Path, problem: String) -> Error {
+    Error::BadVdt { path: path.to_path_buf(), problem: format!("corrupt meta-node file: {problem}") }
+}
+
+/// Whether `child` records `parent` (at `parent_pos`) as its parent, and the parent sits at the
+/// first child's position (`first_pos`): id, switch value, radius and position bit for bit.
+fn is_parent_of(parent: &MnNode, parent_pos: [f32; 3], child: &MnNode, first_pos: [f32; 3]) -> bool {
+    child.parent_id == parent.id
+        && child.parent_switch.to_bits() == parent.switch.to_bits()
+        && child.parent_radius.to_bits() == parent.radius.to_bits()
+        && parent_pos.map(f32::to_bits) == first_pos.map(f32::to_bits)
 }
 
 /// Parses a block, turning a malformed one into an error naming the file.
@@ -159,6 +174,8 @@ pub struct NavOptions {
 /// The navigator: active nodes and triangles over a [`MetaStore`].
 pub struct Navigator<S: MetaStore> {
     store: S,
+    /// The meta-node file, named by errors about its content.
+    path: PathBuf,
     mnt: Vec<MntEntry>,
     active: BTreeMap<u32, Active>,
     usage: HashMap<u32, u32>,
@@ -185,6 +202,7 @@ impl<S: MetaStore> Navigator<S> {
         let roots = file.header().root_metanodes as u32;
         let mut nav = Navigator {
             store,
+            path: file.path().to_path_buf(),
             mnt: file.mnt().to_vec(),
             active: BTreeMap::new(),
             usage: HashMap::new(),
@@ -226,7 +244,15 @@ impl<S: MetaStore> Navigator<S> {
             }
         }
         let leaves = file.header().leaves as u32;
-        if nav.active.values().map(|a| a.node.leaves as u64).sum::<u64>() != leaves as u64 {
+        // The roots' leaf intervals must partition 0..leaves: the cut's keys are looked up by it.
+        let mut end = 0u64;
+        for (&key, a) in &nav.active {
+            if key as u64 != end {
+                return Err(corrupt(&nav.path, "the roots do not partition the leaves".into()));
+            }
+            end += a.node.leaves as u64;
+        }
+        if end != leaves as u64 || nav.active.len() != nav.usage.values().map(|&u| u as usize).sum::<usize>() {
             return Err(Error::BadHeader {
                 path: file.path().to_path_buf(),
                 problem: "the roots do not cover every leaf".into(),
@@ -398,7 +424,7 @@ impl<S: MetaStore> Navigator<S> {
 
     fn try_split(&mut self, key: u32) -> Result<Outcome> {
         let p = &self.active[&key];
-        let (pnode, pmeta, plocal) = (p.node, p.meta, p.local as usize);
+        let (pnode, pmeta, plocal, ppos) = (p.node, p.meta, p.local as usize, p.position);
         // Implicit dependency: every neighbour is older than p.
         for &t in &p.adj {
             for &c in &self.tris[t as usize].corners {
@@ -440,8 +466,16 @@ impl<S: MetaStore> Navigator<S> {
             )));
         };
         let [(a, a_pos), (b, b_pos)] = children;
-        if a.dfs_lo != pnode.dfs_lo || b.dfs_lo != pnode.dfs_lo + a.leaves || a.leaves + b.leaves != pnode.leaves {
-            return Err(Error::InvalidArgument(format!("node {}: children do not split its leaves", pnode.id)));
+        if a.dfs_lo != pnode.dfs_lo
+            || b.dfs_lo as u64 != pnode.dfs_lo as u64 + a.leaves as u64
+            || a.leaves as u64 + b.leaves as u64 != pnode.leaves as u64
+        {
+            return Err(corrupt(&self.path, format!("node {}: children do not split its leaves", pnode.id)));
+        }
+        // The children's copies of the parent (collapse decides on them) must be the parent's own
+        // values, or a split and the collapse undoing it could both be wanted and alternate forever.
+        if !is_parent_of(&pnode, ppos, &a, a_pos) || !is_parent_of(&pnode, ppos, &b, a_pos) {
+            return Err(corrupt(&self.path, format!("node {}: its children's copies of it differ from it", pnode.id)));
         }
         // The triangles the split creates bring a third corner that need not be p's neighbour
         // yet: it too must be older than p. (Also asking it to be younger than p's children's
@@ -517,8 +551,15 @@ impl<S: MetaStore> Navigator<S> {
         let Some(Some((p, p_pos))) = got else {
             return Err(Error::InvalidArgument(format!("meta-node {pm}: parent {pl} missing")));
         };
-        if p.id != parent_id || p.dfs_lo != first {
-            return Err(Error::InvalidArgument(format!("node {parent_id}: parent record does not match its children")));
+        let a_pos = self.active[&first].position;
+        let a_leaves = self.active[&first].node.leaves as u64 + self.active[&second].node.leaves as u64;
+        let copies = [&self.active[&first].node, &self.active[&second].node];
+        if p.id != parent_id
+            || p.dfs_lo != first
+            || p.leaves as u64 != a_leaves
+            || !copies.iter().all(|c| is_parent_of(&p, p_pos, c, a_pos))
+        {
+            return Err(corrupt(&self.path, format!("node {parent_id}: parent record does not match its children")));
         }
         for t in self.created.remove(&p.id).unwrap_or_default() {
             self.remove_triangle(t);
@@ -1171,5 +1212,35 @@ mod tests {
             let stats = tiny.store().pool().stats();
             assert!(stats.disk_reads > 8 && stats.second_chance_hits > 0, "{prefetch:?}: {stats:?}");
         }
+    }
+
+    /// Fuzzing (tools/fuzz.sh, target `navigate`): a child whose copy of its parent's switch
+    /// value differs from the parent's made a split and the collapse undoing it both wanted, and
+    /// `update` alternated between them forever. Now the split is refused with one line naming
+    /// the file.
+    #[test]
+    fn a_child_whose_copy_of_its_parent_differs_is_refused_not_looped_on() {
+        let (dir, f, _, _) = file(12, BlockingOptions { levels_per_node: 3, page_bytes: 512 });
+        let mut bytes = std::fs::read(f.path()).unwrap();
+        // Every non-root node's copy of its parent's switch value becomes 0 (never wanted).
+        let at = std::mem::offset_of!(MnNode, parent_switch);
+        let mut patched = 0;
+        for (m, e) in f.mnt().iter().enumerate() {
+            let block = BlockView::parse(f.mapped_block(m as u32), f.header().metanodes as u32).unwrap();
+            for (k, v) in block.nodes.iter().enumerate() {
+                if !v.is_root() {
+                    let o = e.offset as usize + crate::vdtree::metanode::BLOCK_HEADER_BYTES + k * std::mem::size_of::<MnNode>() + at;
+                    bytes[o..o + 4].copy_from_slice(&0f32.to_le_bytes());
+                    patched += 1;
+                }
+            }
+        }
+        assert!(patched > 100);
+        let path = dir.path().join("bad-copies.rmn");
+        std::fs::write(&path, &bytes).unwrap();
+        let bad = MetaNodeFile::open(&path).unwrap();
+        let mut nav = Navigator::new(&bad, VirtStore::new(&bad), NavOptions::default()).unwrap();
+        let e = nav.update(&camera([5.5, -30.0, 40.0], [5.5, 5.5, 0.0]), 1e-4).err().expect("an error").to_string();
+        assert!(e.contains("bad-copies.rmn") && e.contains("copies of it differ") && !e.contains('\n'), "{e}");
     }
 }
