@@ -12,10 +12,16 @@ use std::path::{Path, PathBuf};
 use exr::block::reader::ChunksReader;
 use exr::meta::attribute::SampleType;
 use exr::meta::header::Header;
+use exr::meta::BlockDescription;
 use exr::prelude::f16;
 
 use super::{check_dimensions, DemFormat, DemInfo, DemSource, Run, RunBuffer};
 use crate::error::{Error, IoContext, Result};
+
+/// The largest block (scan-line group or tile, all channels, uncompressed) read: `exr` sizes its
+/// buffers from the header's block size, so a small file claiming huge blocks would otherwise
+/// make it allocate gigabytes. 256 MiB is 32 lines of a 524,288-post-wide 4-channel f32 image.
+const MAX_BLOCK_BYTES: usize = 256 << 20;
 
 /// Channel names taken for heights, in order of preference.
 const HEIGHT_CHANNELS: [&str; 5] = ["Y", "Z", "R", "height", "elevation"];
@@ -66,7 +72,24 @@ fn choose_channel(path: &Path, headers: &[Header]) -> Result<usize> {
     if channels.iter().any(|c| c.sampling.0 != 1 || c.sampling.1 != 1) {
         return Err(Error::Unsupported { path: path.to_path_buf(), what: "sub-sampled OpenEXR channels".into() });
     }
+    if let Some(bytes) = headers.iter().map(block_bytes).find(|b| b.is_none_or(|b| b > MAX_BLOCK_BYTES)) {
+        let size = bytes.map_or("more than 2^64".to_string(), |b| b.to_string());
+        return Err(Error::Unsupported {
+            path: path.to_path_buf(),
+            what: format!("OpenEXR blocks of {size} bytes (at most {MAX_BLOCK_BYTES} are read)"),
+        });
+    }
     Ok(index)
+}
+
+/// Bytes of one uncompressed block of a part (all channels), what `exr` allocates per block;
+/// `None` if that overflows.
+fn block_bytes(header: &Header) -> Option<usize> {
+    let (width, lines) = match &header.blocks {
+        BlockDescription::Tiles(tiles) => (tiles.tile_size.0, tiles.tile_size.1),
+        BlockDescription::ScanLines => (header.layer_size.0, header.compression.scan_lines_per_block()),
+    };
+    header.channels.bytes_per_pixel.checked_mul(width)?.checked_mul(lines)
 }
 
 struct Exr {

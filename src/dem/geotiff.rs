@@ -17,6 +17,9 @@ use tiff::{ColorType, TiffError};
 use super::{check_dimensions, DemFormat, DemInfo, DemSource, Run, RunBuffer, SourceSpacing};
 use crate::error::{Error, IoContext, Result};
 
+/// The largest strip or tile read, in bytes: `tiff`'s own limit for a decoded chunk.
+const MAX_CHUNK_BYTES: u128 = 256 << 20;
+
 const GT_MODEL_TYPE: u16 = 1024;
 const PROJ_LINEAR_UNITS: u16 = 3076;
 const MODEL_TYPE_GEOGRAPHIC: u16 = 2;
@@ -83,6 +86,17 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         });
     }
     let samples = colour.num_samples();
+    // `tiff` bounds its decoded chunk by its own 256 MiB limit, but sizes some row buffers from
+    // the chunk's width alone: a tiny file claiming a tile 2^31 posts wide made it allocate
+    // gigabytes. No chunk (strip or tile, padding included) over that limit is read.
+    let (chunk_w, chunk_h) = decoder.chunk_dimensions();
+    let chunk_bytes = u128::from(chunk_w) * u128::from(chunk_h) * u128::from(samples) * u128::from(bits / 8);
+    if chunk_bytes > MAX_CHUNK_BYTES {
+        return Err(Error::Unsupported {
+            path: path.to_path_buf(),
+            what: format!("TIFF chunks of {chunk_w} x {chunk_h} pixels ({chunk_bytes} bytes; at most {MAX_CHUNK_BYTES})"),
+        });
+    }
 
     // The sample type is only known for sure from a decoded chunk's variant; the tags say it too.
     let sample_format = decoder

@@ -149,7 +149,7 @@ pub fn read_mesh_with_report(path: &Path) -> Result<(Mesh, MeshReport)> {
         raw
     };
     let bad = |problem: String| Error::bad_mesh(path, problem);
-    let mut builder = Builder::default();
+    let mut builder = Builder { input_bytes: bytes.len(), ..Builder::default() };
     let format = if bytes.starts_with(b"ply") {
         ply::parse(&bytes, &mut builder).map_err(bad)?
     } else if first_word(&bytes) == Some(b"OFF".as_slice()) {
@@ -195,13 +195,18 @@ struct Builder {
     degenerate_dropped: u64,
     /// Corners of the face being added (reused).
     corners: Vec<u32>,
+    /// Length of the (decompressed) input, which bounds how many elements it can hold.
+    input_bytes: usize,
 }
 
 impl Builder {
     fn reserve(&mut self, vertices: usize, faces: usize) {
-        // Counts come from headers: cap them, so a corrupt header cannot ask for terabytes.
-        self.mesh.positions.reserve(vertices.min(1 << 24));
-        self.mesh.triangles.reserve(faces.min(1 << 24));
+        // Counts come from headers: cap them by what the input can hold (every format spends at
+        // least 3 bytes on a vertex or a face), so a small file with a corrupt header cannot ask
+        // for gigabytes; the vectors still grow as needed.
+        let most = (self.input_bytes / 3).min(1 << 24);
+        self.mesh.positions.reserve(vertices.min(most));
+        self.mesh.triangles.reserve(faces.min(most));
     }
 
     fn vertex(&mut self, p: [f64; 3]) -> Result<(), String> {
