@@ -99,7 +99,7 @@ fn exr_claiming_huge_blocks_is_refused_before_allocating() {
     let path = input("exr-huge-block.exr");
     let (r, largest) = largest_allocation(|| relief::dem::open(&path, None).and_then(|mut s| s.read(&mut |_| Ok(()))));
     assert!(largest < 1 << 20, "{largest} bytes allocated at once");
-    let e = r.err().expect("an error").to_string();
+    let e = r.expect_err("an error").to_string();
     assert!(e.contains("exr-huge-block.exr") && e.contains("OpenEXR blocks of") && !e.contains('\n'), "{e}");
 }
 
@@ -110,7 +110,7 @@ fn tiff_claiming_huge_tiles_is_refused_before_allocating() {
     let path = input("tiff-huge-tile.tif");
     let (r, largest) = largest_allocation(|| relief::dem::open(&path, None).and_then(|mut s| s.read(&mut |_| Ok(()))));
     assert!(largest < 1 << 20, "{largest} bytes allocated at once");
-    let e = r.err().expect("an error").to_string();
+    let e = r.expect_err("an error").to_string();
     assert!(e.contains("tiff-huge-tile.tif") && e.contains("TIFF chunks of") && !e.contains('\n'), "{e}");
 }
 
@@ -122,6 +122,6 @@ fn off_claiming_huge_counts_fails_without_reserving_for_them() {
     let path = input("off-huge-counts.off");
     let (r, largest) = largest_allocation(|| relief::mesh::read_mesh(&path));
     assert!(largest < 1 << 20, "{largest} bytes allocated at once");
-    let e = r.err().expect("an error").to_string();
+    let e = r.expect_err("an error").to_string();
     assert!(e.contains("off-huge-counts.off") && !e.contains('\n'), "{e}");
 }

@@ -94,7 +94,9 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
     if chunk_bytes > MAX_CHUNK_BYTES {
         return Err(Error::Unsupported {
             path: path.to_path_buf(),
-            what: format!("TIFF chunks of {chunk_w} x {chunk_h} pixels ({chunk_bytes} bytes; at most {MAX_CHUNK_BYTES})"),
+            what: format!(
+                "TIFF chunks of {chunk_w} x {chunk_h} pixels ({chunk_bytes} bytes; at most {MAX_CHUNK_BYTES})"
+            ),
         });
     }
 

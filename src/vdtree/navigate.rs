@@ -1229,7 +1229,10 @@ mod tests {
             let block = BlockView::parse(f.mapped_block(m as u32), f.header().metanodes as u32).unwrap();
             for (k, v) in block.nodes.iter().enumerate() {
                 if !v.is_root() {
-                    let o = e.offset as usize + crate::vdtree::metanode::BLOCK_HEADER_BYTES + k * std::mem::size_of::<MnNode>() + at;
+                    let o = e.offset as usize
+                        + crate::vdtree::metanode::BLOCK_HEADER_BYTES
+                        + k * std::mem::size_of::<MnNode>()
+                        + at;
                     bytes[o..o + 4].copy_from_slice(&0f32.to_le_bytes());
                     patched += 1;
                 }
@@ -1240,7 +1243,7 @@ mod tests {
         std::fs::write(&path, &bytes).unwrap();
         let bad = MetaNodeFile::open(&path).unwrap();
         let mut nav = Navigator::new(&bad, VirtStore::new(&bad), NavOptions::default()).unwrap();
-        let e = nav.update(&camera([5.5, -30.0, 40.0], [5.5, 5.5, 0.0]), 1e-4).err().expect("an error").to_string();
+        let e = nav.update(&camera([5.5, -30.0, 40.0], [5.5, 5.5, 0.0]), 1e-4).expect_err("an error").to_string();
         assert!(e.contains("bad-copies.rmn") && e.contains("copies of it differ") && !e.contains('\n'), "{e}");
     }
 }
