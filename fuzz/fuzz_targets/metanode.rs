@@ -1,4 +1,5 @@
-//! The meta-node file: validated open, then every block parsed as navigation reads it.
+//! The meta-node file: validated open, then every block parsed both ways navigation reads it.
+//! The header checksum is stamped on the input first (see `common::with_header_checksum`).
 #![no_main]
 use libfuzzer_sys::fuzz_target;
 
@@ -6,11 +7,12 @@ use libfuzzer_sys::fuzz_target;
 mod common;
 
 fuzz_target!(|data: &[u8]| {
-    let (_dir, path) = common::input_file("in.rmn", data);
+    let (_dir, path) = common::input_file("in.rmn", &common::with_header_checksum(data));
     if let Ok(f) = relief::vdtree::metanode::MetaNodeFile::open(&path) {
-        let _ = f.base_triangles().len();
+        let _ = (f.base_triangles().len(), f.tree_bytes());
         let mut buf = Vec::new();
         for m in 0..f.mnt().len().min(1 << 12) as u32 {
+            let _ = f.block_pages(m);
             // Both ways navigation reads a block: pread (Ext) and the map (Virt).
             if f.read_block(m, &mut buf).is_ok() {
                 let bytes: &[u8] = words_as_bytes(&buf);
