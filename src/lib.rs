@@ -27,6 +27,7 @@ pub mod mem;
 pub mod mesh;
 pub mod mesh_check;
 pub mod mesh_fly;
+pub mod pages;
 pub mod metric;
 pub mod minimal;
 pub mod pager;
