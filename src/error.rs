@@ -47,6 +47,12 @@ pub enum Error {
     /// Scratch storage (the redb database of `vdtree::build`) failed.
     #[error("{}: scratch database: {problem}", path.display())]
     Scratch { path: PathBuf, problem: String },
+    /// A page file (`pages::file`) that is not one, or whose content is inconsistent.
+    #[error("{}: {problem}", path.display())]
+    BadPages { path: PathBuf, problem: String },
+    /// A page layout (`pages::two_factor`) that could not be computed.
+    #[error("page layout: {0}")]
+    Layout(String),
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
     /// No usable GPU, or the GPU refused a request (creation, limits, readback).
@@ -86,6 +92,11 @@ impl Error {
     /// A mesh file whose content is wrong.
     pub fn bad_mesh(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
         Error::BadMesh { path: path.into(), problem: problem.into() }
+    }
+
+    /// A page file whose content is wrong.
+    pub fn bad_pages(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
+        Error::BadPages { path: path.into(), problem: problem.into() }
     }
 
     /// A flight-path file whose content is wrong.

@@ -465,15 +465,15 @@ impl Solver {
                     Label::T => {}
                 }
             }
+            let least_s_dual =
+                (0..self.n).filter(|&u| self.label[self.top[u]] == Label::S).map(|u| self.dual[u]).min();
+            if least_s_dual.is_none_or(|d| d <= delta) {
+                // An exposed vertex's dual would reach 0 first: no augmentation gains any more.
+                return false;
+            }
             for u in 0..self.n {
                 match self.label[self.top[u]] {
-                    Label::S => {
-                        if self.dual[u] <= delta {
-                            // An exposed vertex's dual would reach 0: nothing gains any more.
-                            return false;
-                        }
-                        self.dual[u] -= delta;
-                    }
+                    Label::S => self.dual[u] -= delta,
                     Label::T => self.dual[u] += delta,
                     Label::Free => {}
                 }

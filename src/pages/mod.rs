@@ -11,3 +11,5 @@
 //! - [`fetch`]: the per-frame fetch as a [`crate::mesh_fly::MeshFrameSource`].
 
 pub mod matching;
+pub mod hilbert;
+pub mod two_factor;
