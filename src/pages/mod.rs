@@ -13,3 +13,5 @@
 pub mod matching;
 pub mod hilbert;
 pub mod two_factor;
+pub mod file;
+pub mod kdtree;
