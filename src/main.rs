@@ -369,6 +369,74 @@ enum Command {
         #[command(subcommand)]
         kind: MeshCommand,
     },
+    /// The disk-page backend (Sajadi et al.): any triangle soup as self-contained fixed-size
+    /// pages in a layout order, a k-d tree over the pages' boxes, and a per-frame fetch of whole
+    /// pages in sorted order.
+    Pages {
+        #[command(subcommand)]
+        kind: PagesCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum PagesCommand {
+    /// Write a mesh (OFF, PLY, OBJ, optionally gzip'd) or a terrain file (.relief, as the mesh of
+    /// `relief mesh from-terrain`) as a page file (replaced atomically): pages of whole triangles
+    /// with copies of the vertices they use (position, normal, colour; 1-byte local indices when a
+    /// page holds at most 256 vertices, else 2), each triangle in exactly one page; a directory
+    /// with each page's bounding box and normal cone; the k-d tree over the boxes.
+    Build {
+        /// Mesh or terrain file.
+        input: PathBuf,
+        /// Page file to write.
+        output: PathBuf,
+        /// Page size, BYTES: a power of two from 1K to 1M (K/M suffixes allowed).
+        #[arg(long, value_name = "BYTES", default_value = "4096")]
+        page_size: String,
+        /// Triangle order: raster (the input's), 2factor (hierarchical minimum-weight 2-factor:
+        /// distance, then normal deviation within clusters of at most 12), hilbert (3D Hilbert
+        /// curve through the centroids).
+        #[arg(long, value_parser = PossibleValuesParser::new(["raster", "2factor", "hilbert"]), default_value = "2factor")]
+        layout: String,
+        /// Terrain input: take every N-th post.
+        #[arg(long, value_name = "N", default_value_t = 1)]
+        step: u32,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Fly over a page file: in a window, or headless along a path (`relief path orbit FILE`).
+    ///
+    /// Per frame: the k-d tree is culled against the view frustum, the pages of the surviving
+    /// leaves collected once each, culled by box and normal cone, sorted, read whole with pread
+    /// (one call per run of consecutive pages) and all their triangles drawn. Reports pages
+    /// requested, bytes read, seek distance (Σ |page − previous page|, in pages, from where the
+    /// previous frame's reads ended), fetch and frame times in ms, triangles.
+    Fly {
+        /// Page file (from `relief pages build`).
+        file: PathBuf,
+        /// Evict the file from the page cache first and turn off readahead (a cold start).
+        #[arg(long)]
+        cold: bool,
+        /// Evict the file from the page cache before every frame (implies --cold): every page
+        /// is read from storage, the fetch with no cache (a measurement mode).
+        #[arg(long)]
+        cold_frames: bool,
+        /// Limit what the flight allocates and pages in after start-up to BYTES (a cgroup v1
+        /// memory limit): the OS page cache then holds at most about that much of the file, as
+        /// in the paper's walkthrough (264 MB left for caching pages).
+        #[arg(long, value_name = "BYTES")]
+        cap: Option<String>,
+        /// Keep pages whose normal cone faces away from the eye (back faces are shaded, so
+        /// culling can open holes in open scans).
+        #[arg(long)]
+        no_backface_cull: bool,
+        #[command(flatten)]
+        show: MeshShowArgs,
+    },
 }
 
 #[derive(Subcommand)]
@@ -622,6 +690,17 @@ fn show_mesh(
             fmt_bytes(s.upload_bytes),
             s.adapter
         );
+        if let Some(p) = &s.fetch {
+            println!(
+                "  pages: {:.1} requested per frame (of {:.1} named by the k-d tree), {} read, seek {:.1} pages, fetch {:.2} ms (reads {:.2} ms) per frame (means)",
+                p.pages_mean,
+                p.pages_candidate_mean,
+                fmt_bytes(p.bytes_read),
+                p.seek_pages_mean,
+                p.fetch_ms_mean,
+                p.read_ms_mean
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -723,8 +802,8 @@ enum PathSubject {
 /// What every `relief path` generator takes.
 #[derive(Args)]
 struct PathArgs {
-    /// Terrain file (.relief), or a mesh (OFF, PLY, OBJ, optionally gzip'd): then the path is
-    /// about the mesh's bounding box, in the file's units.
+    /// Terrain file (.relief), or a mesh (OFF, PLY, OBJ, optionally gzip'd), a meta-node file or
+    /// a page file: then the path is about the mesh's bounding box, in the file's units.
     file: PathBuf,
     /// A mesh's up axis [default: the axis of the box's smallest side when it is at most half the
     /// next (a terrain), else y (scanned objects, OBJ)]. Terrains are always z up.
@@ -1213,6 +1292,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     bail!("--up: a terrain's up axis is z");
                 }
                 PathSubject::Terrain(TerrainFile::open(file)?)
+            } else if has_magic(file, &relief::pages::file::MAGIC) {
+                let bounds = relief::pages::file::PageFile::open(file)?.header().bounds;
+                PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
             } else if has_magic(file, &relief::vdtree::metanode::MAGIC) {
                 let bounds = relief::vdtree::metanode::MetaNodeFile::open(file)?.header().bounds;
                 PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
@@ -1465,6 +1547,78 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 mesh.triangles.len()
             );
             Ok(ExitCode::SUCCESS)
+        }
+        Command::Pages { kind: PagesCommand::Build { input, output, page_size, layout, step, json, quiet } } => {
+            use relief::pages::file::{build_page_file, PageBuildOptions, PageLayout};
+            let page_bytes = parse_bytes("--page-size", &page_size)?;
+            if !page_bytes.is_power_of_two() || !(1024..=1 << 20).contains(&page_bytes) {
+                bail!("--page-size must be a power of two from 1K to 1M bytes, got {page_bytes}");
+            }
+            if step == 0 {
+                bail!("--step must be at least 1");
+            }
+            let layout = PageLayout::from_name(&layout).expect("a possible value");
+            let mesh = if is_terrain_file(&input) {
+                relief::mesh::terrain_mesh(&TerrainFile::open(&input)?, step)?
+            } else {
+                relief::mesh::read_mesh(&input)?
+            };
+            let mut options = PageBuildOptions::new(page_bytes as u32, layout);
+            options.progress = progress(quiet);
+            let r = build_page_file(&mesh, &output, &options)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                println!(
+                    "{}: {} pages of {} B ({} layout), {} triangles ({:.1} a page, {:.0}% full), {} vertex copies of {} vertices, {} pages with 1-byte indices, k-d tree {} nodes / {} references, {}; layout {:.0} ms, pages {:.0} ms",
+                    r.output,
+                    r.pages,
+                    r.page_bytes,
+                    layout.name(),
+                    r.triangles,
+                    r.triangles_per_page_mean,
+                    r.fill_mean * 100.0,
+                    r.vertex_copies,
+                    r.source_vertices,
+                    r.one_byte_index_pages,
+                    r.kd_nodes,
+                    r.kd_refs,
+                    fmt_bytes(r.file_bytes),
+                    r.layout_ms,
+                    r.write_ms
+                );
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Pages { kind: PagesCommand::Fly { file, cold, cold_frames, cap, no_backface_cull, show } } => {
+            use relief::pages::fetch::{FetchOptions, PageSource};
+            use relief::pages::file::PageFile;
+            let cold = cold || cold_frames;
+            let cap_bytes = cap.as_deref().map(|c| parse_bytes("--cap", c)).transpose()?;
+            show.check()?;
+            let flight = show.path.as_deref().map(FlightPath::load).transpose()?;
+            if flight.is_none() {
+                check_display()?;
+            }
+            if cold {
+                relief::pager::drop_from_page_cache(&file)?;
+            }
+            let pages = PageFile::open(&file)?;
+            if cold {
+                pages.advise_random()?;
+            }
+            let name = format!(
+                "pages, {} layout, {} pages of {} B",
+                pages.header().layout.name(),
+                pages.header().pages,
+                pages.header().page_bytes
+            );
+            let mut source = PageSource::new(
+                pages,
+                FetchOptions { backface_cull: !no_backface_cull, evict_each_frame: cold_frames },
+            );
+            let _cap = cap_bytes.map(relief::pager::MemoryCap::apply).transpose()?;
+            show_mesh(&mut source, &file, &name, flight, show)
         }
         Command::Verify { file, json, quiet } => {
             let f = TerrainFile::open(&file)?;

@@ -30,6 +30,59 @@ pub trait MeshFrameSource {
     fn triangles(&self) -> &[[f32; 3]];
     /// Bounding box of the whole mesh (for paths and the initial view).
     fn bounds(&self) -> Bounds;
+    /// The last update's page fetch, for backends that read whole pages per frame (the disk-page
+    /// backend, `pages::fetch`); `None` for the others.
+    fn page_fetch(&self) -> Option<PageFetchFigures> {
+        None
+    }
+}
+
+/// One frame's fetch of whole pages (`relief pages fly`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct PageFetchFigures {
+    /// Pages read this frame (after culling).
+    pub pages_requested: u64,
+    /// Pages the spatial query named before the per-page box and normal-cone tests.
+    pub pages_candidate: u64,
+    pub bytes_read: u64,
+    /// Σ |page − previous page| over the reads in order, in pages (see `pages::fetch`).
+    pub seek_pages: u64,
+    /// The whole fetch (query, cull, sort, read, decode), ms.
+    pub fetch_ms: f64,
+    /// The reads alone, ms.
+    pub read_ms: f64,
+}
+
+/// Means and totals of [`PageFetchFigures`] over a flight.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct PageFetchSummary {
+    pub pages_mean: f64,
+    pub pages_candidate_mean: f64,
+    pub bytes_mean: f64,
+    pub bytes_read: u64,
+    pub seek_pages_mean: f64,
+    pub fetch_ms_mean: f64,
+    pub read_ms_mean: f64,
+}
+
+impl PageFetchSummary {
+    /// Over the frames that fetched pages; `None` when none did.
+    fn of(frames: &[MeshFrameReport]) -> Option<PageFetchSummary> {
+        let f: Vec<PageFetchFigures> = frames.iter().filter_map(|f| f.fetch).collect();
+        if f.is_empty() {
+            return None;
+        }
+        let m = |g: fn(&PageFetchFigures) -> f64| mean(f.iter().map(g));
+        Some(PageFetchSummary {
+            pages_mean: m(|x| x.pages_requested as f64),
+            pages_candidate_mean: m(|x| x.pages_candidate as f64),
+            bytes_mean: m(|x| x.bytes_read as f64),
+            bytes_read: f.iter().map(|x| x.bytes_read).sum(),
+            seek_pages_mean: m(|x| x.seek_pages as f64),
+            fetch_ms_mean: m(|x| x.fetch_ms),
+            read_ms_mean: m(|x| x.read_ms),
+        })
+    }
 }
 
 /// What one [`MeshFrameSource::update`] did. The loops re-upload the triangles when
@@ -234,6 +287,9 @@ pub struct MeshFrameReport {
     pub frame_ms: f64,
     /// Triangle bytes sent to the GPU this frame (0 when unchanged; the 256-byte uniform aside).
     pub upload_bytes: u64,
+    /// Page-fetch figures (the disk-page backend only), flattened into the frame's object.
+    #[serde(flatten)]
+    pub fetch: Option<PageFetchFigures>,
 }
 
 /// Whole-flight figures: means, medians and totals over the frames.
@@ -261,6 +317,9 @@ pub struct MeshFlySummary {
     pub height: u32,
     pub tolerance_px: f64,
     pub adapter: String,
+    /// Page-fetch means (the disk-page backend only), flattened into the summary.
+    #[serde(flatten)]
+    pub fetch: Option<PageFetchSummary>,
 }
 
 /// A headless mesh flight: `{"frames":[…],"summary":{…}}` as JSON.
@@ -306,6 +365,7 @@ impl MeshFlySummary {
             height: options.height_px,
             tolerance_px: options.tolerance_px,
             adapter,
+            fetch: PageFetchSummary::of(frames),
         }
     }
 }
@@ -379,6 +439,7 @@ pub fn fly_mesh_headless(
             render_ms,
             frame_ms: t0.elapsed().as_secs_f64() * 1e3,
             upload_bytes,
+            fetch: source.page_fetch(),
         });
         bar.inc(1);
     }

@@ -208,7 +208,8 @@ pub fn build_page_file(mesh: &Mesh, out: &Path, options: &PageBuildOptions) -> R
             }
         }
         let (nv_after, nt_after) = (open.vertices.len() + fresh, open.triangles.len() + 1);
-        if page_size(nv_after, nt_after) > page as usize || nv_after > u16::MAX as usize || nt_after > u16::MAX as usize {
+        if page_size(nv_after, nt_after) > page as usize || nv_after > u16::MAX as usize || nt_after > u16::MAX as usize
+        {
             filled.close(&source, &mut open, page as usize);
         }
         let page_no = filled.entries.len() as u32;
@@ -523,7 +524,12 @@ impl PageFile {
         let tables = &map[HEADER_BYTES..header.refs_offset as usize + header.kd_refs as usize * 4];
         let computed = xxhash_rust::xxh3::xxh3_64(tables);
         if computed != header.tables_checksum {
-            return Err(Error::Checksum { path: path.into(), which: "tables", stored: header.tables_checksum, computed });
+            return Err(Error::Checksum {
+                path: path.into(),
+                which: "tables",
+                stored: header.tables_checksum,
+                computed,
+            });
         }
         let f = |at: usize| f32::from_le_bytes(map[at..at + 4].try_into().expect("4 bytes"));
         let mut directory = Vec::with_capacity(header.pages as usize);
@@ -538,7 +544,8 @@ impl PageFile {
                 cone_half_angle_rad: f(at + 36),
             };
             let (tris, verts) = (get_u32(&map, at + 40), get_u32(&map, at + 44));
-            let ok = (0..3).all(|k| e.box_min[k].is_finite() && e.box_max[k].is_finite() && e.box_min[k] <= e.box_max[k])
+            let ok = (0..3)
+                .all(|k| e.box_min[k].is_finite() && e.box_max[k].is_finite() && e.box_min[k] <= e.box_max[k])
                 && e.cone_axis.iter().all(|c| c.is_finite())
                 && (0.0..=4.0).contains(&e.cone_half_angle_rad)
                 && tris > 0
@@ -569,7 +576,12 @@ impl PageFile {
         for (i, n) in nodes.iter().enumerate() {
             let ok = match n.axis {
                 LEAF => n.a as u64 + n.b as u64 <= refs.len() as u64,
-                0..=2 => (n.a as usize) > i && (n.b as usize) > i && (n.a as usize) < nodes.len() && (n.b as usize) < nodes.len(),
+                0..=2 => {
+                    (n.a as usize) > i
+                        && (n.b as usize) > i
+                        && (n.a as usize) < nodes.len()
+                        && (n.b as usize) < nodes.len()
+                }
                 _ => false,
             };
             if !ok {
@@ -637,6 +649,17 @@ impl PageFile {
         Ok(view)
     }
 
+    /// Drops the file's pages from the OS page cache (those not mapped by a process).
+    pub fn evict_from_page_cache(&self) -> Result<()> {
+        use std::os::fd::AsRawFd;
+        // SAFETY: posix_fadvise only reads the descriptor, which `self.file` keeps open.
+        let rc = unsafe { libc::posix_fadvise(self.file.as_raw_fd(), 0, 0, libc::POSIX_FADV_DONTNEED) };
+        if rc != 0 {
+            return Err(Error::io(&self.path, std::io::Error::from_raw_os_error(rc)));
+        }
+        Ok(())
+    }
+
     /// No readahead for the map and for `pread` (a cold flight reads exactly its pages).
     pub fn advise_random(&self) -> Result<()> {
         use std::os::fd::AsRawFd;
@@ -668,7 +691,8 @@ fn decode_header(path: &Path, b: &[u8], len: u64) -> Result<PageHeader> {
         return Err(Error::Checksum { path: path.into(), which: "header", stored, computed });
     }
     let f = |at| f64::from_bits(get_u64(b, at));
-    let layout = PageLayout::from_code(get_u32(b, 20)).ok_or_else(|| bad(format!("unknown layout {}", get_u32(b, 20))))?;
+    let layout =
+        PageLayout::from_code(get_u32(b, 20)).ok_or_else(|| bad(format!("unknown layout {}", get_u32(b, 20))))?;
     let h = PageHeader {
         page_bytes: get_u32(b, 16),
         layout,
@@ -691,9 +715,13 @@ fn decode_header(path: &Path, b: &[u8], len: u64) -> Result<PageHeader> {
         return Err(bad(format!("page size {} is not a power of two from 1 KiB to 1 MiB", h.page_bytes)));
     }
     if h.pages == 0 || h.pages >= u32::MAX as u64 || h.triangles < h.pages || h.kd_nodes == 0 || h.kd_refs < h.pages {
-        return Err(bad(format!("{} pages, {} triangles, {} k-d nodes, {} references", h.pages, h.triangles, h.kd_nodes, h.kd_refs)));
+        return Err(bad(format!(
+            "{} pages, {} triangles, {} k-d nodes, {} references",
+            h.pages, h.triangles, h.kd_nodes, h.kd_refs
+        )));
     }
-    let kd_at = (HEADER_BYTES as u64).checked_add(h.pages.checked_mul(ENTRY_BYTES as u64).ok_or_else(|| bad("sizes overflow".into()))?);
+    let kd_at = (HEADER_BYTES as u64)
+        .checked_add(h.pages.checked_mul(ENTRY_BYTES as u64).ok_or_else(|| bad("sizes overflow".into()))?);
     let refs_at = h.kd_nodes.checked_mul(KD_NODE_BYTES as u64).and_then(|x| x.checked_add(h.kd_offset));
     let tables_end = h.kd_refs.checked_mul(4).and_then(|x| x.checked_add(h.refs_offset));
     let data_end = h.pages.checked_mul(h.page_bytes as u64).and_then(|x| x.checked_add(h.data_offset));
@@ -709,7 +737,8 @@ fn decode_header(path: &Path, b: &[u8], len: u64) -> Result<PageHeader> {
         Some(end) => return Err(Error::Truncated { path: path.into(), expected: end, found: len }),
         None => return Err(bad("page data size overflows".into())),
     }
-    if !(0..3).all(|k| h.bounds.min[k].is_finite() && h.bounds.max[k].is_finite() && h.bounds.min[k] <= h.bounds.max[k]) {
+    if !(0..3).all(|k| h.bounds.min[k].is_finite() && h.bounds.max[k].is_finite() && h.bounds.min[k] <= h.bounds.max[k])
+    {
         return Err(bad("bounding box is not finite and ordered".into()));
     }
     Ok(h)

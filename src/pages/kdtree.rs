@@ -67,7 +67,13 @@ pub fn build_kdtree(boxes: &[([f32; 3], [f32; 3])]) -> (Vec<KdNode>, Vec<u32>) {
     (nodes, refs)
 }
 
-fn build_node(boxes: &[([f32; 3], [f32; 3])], pages: Vec<u32>, depth: u32, nodes: &mut Vec<KdNode>, refs: &mut Vec<u32>) -> u32 {
+fn build_node(
+    boxes: &[([f32; 3], [f32; 3])],
+    pages: Vec<u32>,
+    depth: u32,
+    nodes: &mut Vec<KdNode>,
+    refs: &mut Vec<u32>,
+) -> u32 {
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
     for &p in &pages {
@@ -129,7 +135,8 @@ pub fn box_in_frustum(box_min: [f32; 3], box_max: [f32; 3], eye_in_world: DVec3,
 /// angle between the cone's axis and the direction from the box's centre to the eye, less the
 /// cone's half-angle and the angle the box's bounding sphere subtends, still exceeds 90°.
 pub fn back_facing(page: &PageBounds, eye_in_world: DVec3) -> bool {
-    if !(page.cone_half_angle_rad < std::f32::consts::FRAC_PI_2) {
+    // A cone of 90° or more (or NaN) holds normals facing every way the eye could be.
+    if page.cone_half_angle_rad.is_nan() || page.cone_half_angle_rad >= std::f32::consts::FRAC_PI_2 {
         return false;
     }
     let lo = DVec3::from(page.box_min.map(f64::from));
@@ -204,13 +211,19 @@ mod tests {
         let (mut out, mut stack) = (Vec::new(), Vec::new());
         let mut seen_some = 0;
         for _ in 0..300 {
-            let eye = DVec3::new(lcg(&mut s) as f64 * 16.0 - 3.0, lcg(&mut s) as f64 * 16.0 - 3.0, lcg(&mut s) as f64 * 8.0);
+            let eye =
+                DVec3::new(lcg(&mut s) as f64 * 16.0 - 3.0, lcg(&mut s) as f64 * 16.0 - 3.0, lcg(&mut s) as f64 * 8.0);
             let look = DVec3::new(lcg(&mut s) as f64 * 10.0, lcg(&mut s) as f64 * 10.0, lcg(&mut s) as f64);
-            let Ok(cam) = Camera::new(eye, look, DVec3::Z, 20.0 + 100.0 * lcg(&mut s) as f64, 640, 360) else { continue };
+            let Ok(cam) = Camera::new(eye, look, DVec3::Z, 20.0 + 100.0 * lcg(&mut s) as f64, 640, 360) else {
+                continue;
+            };
             let planes = cam.frustum_normals();
             query_frustum(&nodes, &refs, eye, &planes, &mut out, &mut stack);
-            let kd: Vec<u32> =
-                out.iter().copied().filter(|&p| box_in_frustum(boxes[p as usize].0, boxes[p as usize].1, eye, &planes)).collect();
+            let kd: Vec<u32> = out
+                .iter()
+                .copied()
+                .filter(|&p| box_in_frustum(boxes[p as usize].0, boxes[p as usize].1, eye, &planes))
+                .collect();
             let brute: Vec<u32> = (0..boxes.len() as u32)
                 .filter(|&p| box_in_frustum(boxes[p as usize].0, boxes[p as usize].1, eye, &planes))
                 .collect();

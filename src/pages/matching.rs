@@ -35,7 +35,10 @@ pub enum MatchingError {
 /// The partner of every vertex in a perfect matching of least total cost on the graph with
 /// `vertices` vertices and `edges` (`u`, `v`, cost; costs may be negative and tie; of parallel
 /// edges the cheapest counts).
-pub fn min_weight_perfect_matching(vertices: usize, edges: &[(usize, usize, i64)]) -> Result<Vec<usize>, MatchingError> {
+pub fn min_weight_perfect_matching(
+    vertices: usize,
+    edges: &[(usize, usize, i64)],
+) -> Result<Vec<usize>, MatchingError> {
     for (k, &(u, v, _)) in edges.iter().enumerate() {
         if u >= vertices || v >= vertices || u == v {
             return Err(MatchingError::BadEdge { edge: k, u, v, vertices });
@@ -465,8 +468,7 @@ impl Solver {
                     Label::T => {}
                 }
             }
-            let least_s_dual =
-                (0..self.n).filter(|&u| self.label[self.top[u]] == Label::S).map(|u| self.dual[u]).min();
+            let least_s_dual = (0..self.n).filter(|&u| self.label[self.top[u]] == Label::S).map(|u| self.dual[u]).min();
             if least_s_dual.is_none_or(|d| d <= delta) {
                 // An exposed vertex's dual would reach 0 first: no augmentation gains any more.
                 return false;
@@ -544,7 +546,8 @@ mod tests {
         for (u, &v) in mate.iter().enumerate() {
             assert_eq!(mate[v], u, "matching is symmetric");
             if u < v {
-                sum += edges.iter().filter(|e| (e.0, e.1) == (u, v) || (e.0, e.1) == (v, u)).map(|e| e.2).min().unwrap();
+                sum +=
+                    edges.iter().filter(|e| (e.0, e.1) == (u, v) || (e.0, e.1) == (v, u)).map(|e| e.2).min().unwrap();
             }
         }
         sum
@@ -579,6 +582,67 @@ mod tests {
                 (Err(MatchingError::NoPerfectMatching { .. }), None) => {}
                 (got, want) => prop_assert!(false, "solver {:?}, brute force {:?}", got, want),
             }
+        }
+    }
+
+    /// Least total cost of a perfect matching by an independent implementation (the
+    /// `integer-blossom` crate, a dev-dependency only): its maximum-weight matching on the dense
+    /// matrix of `K − (cost − lo)` (0: no edge), K as in our reduction. None: not perfect.
+    fn independent(n: usize, edges: &[(usize, usize, i64)]) -> Option<i64> {
+        let lo = edges.iter().map(|e| e.2).min()?;
+        let hi = edges.iter().map(|e| e.2).max()?;
+        let k = (n as i64 / 2) * (hi - lo) + 1;
+        let mut w = vec![0i64; n * n];
+        for &(u, v, c) in edges {
+            let (a, b) = (u.min(v), u.max(v));
+            w[a * n + b] = w[a * n + b].max(k - (c - lo));
+        }
+        let mate = integer_blossom::max_weight_matching(&w, n);
+        let mut sum = 0;
+        for (u, m) in mate.iter().enumerate() {
+            let v = (*m)?;
+            if u < v {
+                sum += k - w[u * n + v] + lo;
+            }
+        }
+        Some(sum)
+    }
+
+    /// Sparse graphs of up to 60 vertices, beyond brute force: a random cycle through all
+    /// vertices (so a perfect matching exists when n is even) plus random chords, small costs
+    /// (many ties), as the 2-factor's inflated graphs are.
+    fn large_graph() -> impl Strategy<Value = (usize, Vec<(usize, usize, i64)>)> {
+        (2usize..=30, any::<u64>()).prop_map(|(half, seed)| {
+            let n = 2 * half;
+            let mut s = seed | 1;
+            let mut next = move || {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                s
+            };
+            let mut order: Vec<usize> = (0..n).collect();
+            for i in (1..n).rev() {
+                order.swap(i, (next() % (i as u64 + 1)) as usize);
+            }
+            let mut edges: Vec<(usize, usize, i64)> =
+                (0..n).map(|i| (order[i], order[(i + 1) % n], (next() % 9) as i64 - 2)).collect();
+            for _ in 0..2 * n {
+                let (u, v) = ((next() % n as u64) as usize, (next() % n as u64) as usize);
+                if u != v {
+                    edges.push((u, v, (next() % 9) as i64 - 2));
+                }
+            }
+            (n, edges)
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(500))]
+        #[test]
+        fn agrees_with_an_independent_blossom_on_larger_graphs((n, edges) in large_graph()) {
+            let mate = min_weight_perfect_matching(n, &edges).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            prop_assert_eq!(Some(total(&mate, &edges)), independent(n, &edges));
         }
     }
 

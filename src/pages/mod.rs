@@ -10,8 +10,9 @@
 //! - [`kdtree`]: the disk-page k-d tree and the box / normal-cone culling.
 //! - [`fetch`]: the per-frame fetch as a [`crate::mesh_fly::MeshFrameSource`].
 
-pub mod matching;
-pub mod hilbert;
-pub mod two_factor;
+pub mod fetch;
 pub mod file;
+pub mod hilbert;
 pub mod kdtree;
+pub mod matching;
+pub mod two_factor;

@@ -98,7 +98,11 @@ pub fn min_two_factor(nodes: usize, edges: &[(usize, usize, i64)]) -> std::resul
 /// Orders `points` (one per node, in a spatially coherent order such as Hilbert's) by a
 /// minimum 2-factor of their proximity graph, costs from `cost(i, j)` (≥ 0); returns positions
 /// into `points`.
-fn order_by_two_factor(points: &[[f64; 3]], neighbours: usize, cost: impl Fn(usize, usize) -> f64) -> Result<Vec<usize>> {
+fn order_by_two_factor(
+    points: &[[f64; 3]],
+    neighbours: usize,
+    cost: impl Fn(usize, usize) -> f64,
+) -> Result<Vec<usize>> {
     let m = points.len();
     if m <= 2 {
         return Ok((0..m).collect());
@@ -243,8 +247,8 @@ impl Ctx<'_> {
     fn mean(&self, items: &[u32]) -> [f64; 3] {
         let mut s = [0.0; 3];
         for &t in items {
-            for k in 0..3 {
-                s[k] += self.centroids[t as usize][k];
+            for (sum, c) in s.iter_mut().zip(self.centroids[t as usize]) {
+                *sum += c;
             }
         }
         s.map(|v| v / items.len().max(1) as f64)
@@ -272,8 +276,8 @@ impl Ctx<'_> {
             let mut sums = vec![([0.0f64; 3], 0usize); k];
             for (&a, &t) in assign.iter().zip(items) {
                 let (s, n) = &mut sums[a as usize];
-                for c in 0..3 {
-                    s[c] += self.centroids[t as usize][c];
+                for (sum, c) in s.iter_mut().zip(self.centroids[t as usize]) {
+                    *sum += c;
                 }
                 *n += 1;
             }
