@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Fuzzes every reader of outside bytes (issue 8): DEMs (through detection and forced), terrain
 # files (+ verify, an orbit and a refinement), flight paths, meshes, VDT files, meta-node files
-# (every block) and navigation over them. Not part of CI or tools/test.sh. Usage, from anywhere:
+# (every block), navigation over them, and page files (every page, then the per-frame fetch).
+# Not part of CI or tools/test.sh. Usage, from anywhere:
 #   bash tools/fuzz.sh [SECONDS_PER_TARGET] [TARGET...]      (default: 30 s each, all targets)
 # Installs cargo-fuzz when missing. cargo-fuzz needs nightly compiler flags; the stable toolchain
 # accepts them with RUSTC_BOOTSTRAP=1. Built optimised with debug assertions (overflow checks),
@@ -18,7 +19,7 @@ cd "$(dirname "$0")/.."
 seconds=${1:-30}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(dem dem_forced terrain path mesh vdt metanode navigate)
+[ ${#targets[@]} -gt 0 ] || targets=(dem dem_forced terrain path mesh vdt metanode navigate pages)
 command -v cargo-fuzz >/dev/null || cargo install cargo-fuzz --locked
 export RUSTC_BOOTSTRAP=1
 cargo fuzz build -O -a -s none
