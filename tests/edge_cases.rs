@@ -204,10 +204,14 @@ fn a_conversion_killed_at_any_moment_leaves_the_old_file_or_the_new_one() {
     assert!(o.status.success());
     let full_ms = t0.elapsed().as_millis() as u64;
     let (mut saw_old, mut saw_new) = (0, 0);
-    for k in 0..24u64 {
+    // Spread 24 kills over the whole conversion (and a little past it). A loaded machine (CI runs
+    // tests side by side on two cores) converts slower than the timing run, so while no kill has
+    // landed after the rename yet, further rounds double the delay (up to 8 more rounds).
+    let mut k = 0u64;
+    while k < 24 || (saw_new == 0 && k < 32) {
+        let delay_ms = if k < 24 { k * (full_ms + 50) / 23 } else { (full_ms + 50) << (k - 23) };
         let mut child = common::relief().arg("convert").arg(&synth).arg(&out).arg("--quiet").spawn().unwrap();
-        // Spread the kills over the whole conversion (and a little past it).
-        std::thread::sleep(std::time::Duration::from_millis(k * (full_ms + 50) / 23));
+        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
         let _ = child.kill();
         let _ = child.wait();
         let now = std::fs::read(&out).unwrap();
@@ -222,6 +226,7 @@ fn a_conversion_killed_at_any_moment_leaves_the_old_file_or_the_new_one() {
         }
         let t = TerrainFile::open(&out).unwrap();
         assert!(verify(&t, Progress::hidden()).unwrap().ok);
+        k += 1;
     }
     assert!(saw_old > 0 && saw_new > 0, "kills landed before ({saw_old}) and after ({saw_new}) the rename");
 }
