@@ -12,6 +12,7 @@ pub mod error;
 pub mod hierarchy;
 pub mod layout;
 pub mod layout_faults;
+mod mapped;
 
 pub use error::{Error, Result};
 pub mod atomic_file;

@@ -513,12 +513,7 @@ impl PageFile {
     pub fn open(path: &Path) -> Result<PageFile> {
         let file = File::open(path).at(path)?;
         let len = file.metadata().at(path)?.len();
-        // SAFETY: the map is read-only and relief never writes a page file in place (output goes
-        // to a temporary file renamed over the target, so an old mapping keeps the old inode).
-        // Another process truncating the file could still fault a read (the SIGBUS handler then
-        // names it); all sizes are validated here against the length.
-        let map = unsafe { Mmap::map(&file) }.at(path)?;
-        crate::sigbus::note_mapped(path);
+        let map = crate::mapped::map_read_only(path, &file, len)?;
         let header = decode_header(path, &map, len)?;
         let bad = |problem: String| Error::bad_pages(path, problem);
         let tables = &map[HEADER_BYTES..header.refs_offset as usize + header.kd_refs as usize * 4];

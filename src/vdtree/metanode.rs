@@ -580,12 +580,7 @@ impl MetaNodeFile {
     pub fn open(path: &Path) -> Result<MetaNodeFile> {
         let file = File::open(path).at(path)?;
         let len = file.metadata().at(path)?.len();
-        // SAFETY: the map is read-only and relief never writes a meta-node file in place (output
-        // goes to a temporary file renamed over the target, so an old mapping keeps the old
-        // inode). Another process truncating the file under us could still fault a read; that is
-        // the usual caveat of mapped files, and the sizes are validated here against the length.
-        let map = unsafe { Mmap::map(&file) }.at(path)?;
-        crate::sigbus::note_mapped(path);
+        let map = crate::mapped::map_read_only(path, &file, len)?;
         let header = decode_header(path, &map, len)?;
         let bad = |problem: String| Error::BadHeader { path: path.to_path_buf(), problem };
         let mnt_bytes = header.metanodes as usize * std::mem::size_of::<MntEntry>();

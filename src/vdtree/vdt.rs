@@ -173,16 +173,7 @@ impl VdtFile {
             (&file).read_exact(&mut head).at(path)?;
         }
         let header = VdtHeader::decode(path, &head, file_len)?;
-        // SAFETY: the map is read-only and private to this value; the file is held open for its
-        // lifetime and its length was checked against the header just above. Another process
-        // truncating or rewriting the file while it is mapped could still fault (SIGBUS) or change
-        // what we read: relief never writes a VDT file in place (build writes a temporary file and
-        // renames it over the old name), so this happens only if someone else does so.
-        let map = unsafe { Mmap::map(&file) }.at(path)?;
-        crate::sigbus::note_mapped(path);
-        if map.len() as u64 != file_len {
-            return Err(Error::Truncated { path: path.into(), expected: file_len, found: map.len() as u64 });
-        }
+        let map = crate::mapped::map_read_only(path, &file, file_len)?;
         let vdt = VdtFile { path: path.to_path_buf(), header, _file: file, map };
         vdt.check_records()?;
         Ok(vdt)
