@@ -125,3 +125,29 @@ fn off_claiming_huge_counts_fails_without_reserving_for_them() {
     let e = r.expect_err("an error").to_string();
     assert!(e.contains("off-huge-counts.off") && !e.contains('\n'), "{e}");
 }
+
+/// Two OpenEXR files of 358 and 389 bytes with B44-compressed f16 blocks whose packed differences
+/// overflow `exr`'s B44 arithmetic (u32, meant to wrap as in OpenEXR's reference decoder). Release
+/// builds wrapped; builds with overflow checks (tests, debug, fuzzing) panicked inside `exr`.
+/// Cargo.toml now builds `exr` without overflow checks in every profile, so each file streams to
+/// the end or fails with one line, never a panic.
+#[test]
+fn exr_b44_blocks_that_overflow_decode_without_a_panic() {
+    for name in ["exr-b44-overflow.exr", "exr-b44-overflow-2.exr"] {
+        let path = input(name);
+        let r = std::panic::catch_unwind(|| {
+            relief::dem::open(&path, Some(relief::dem::DemFormat::Exr)).and_then(|mut s| {
+                let mut samples = 0u64;
+                s.read(&mut |run| {
+                    samples += run.values.len() as u64;
+                    Ok(())
+                })
+                .map(|()| samples)
+            })
+        });
+        match r.unwrap_or_else(|_| panic!("{name}: the reader panicked")) {
+            Ok(samples) => assert!(samples > 0, "{name}"),
+            Err(e) => assert!(e.to_string().contains(name) && !e.to_string().contains('\n'), "{e}"),
+        }
+    }
+}
