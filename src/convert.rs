@@ -27,6 +27,7 @@ use crate::format::{
 };
 use crate::hierarchy::{Grid, MAX_N};
 use crate::layout::{AnyLayout, Layout, LayoutKind};
+use crate::mapped::MAX_MAPPED_BYTES;
 use crate::mem::AnonSampler;
 use crate::preprocess;
 use crate::progress::Progress;
@@ -100,6 +101,16 @@ pub struct ConvertReport {
     pub peak_rss_anon_bytes: u64,
 }
 
+/// A failed `set_len`; EFBIG (larger than the file system's largest file) says how large.
+fn file_system_limit(e: std::io::Error, path: &Path, len: u64) -> Error {
+    if e.raw_os_error() == Some(libc::EFBIG) {
+        let problem =
+            format!("{} is more than this file system allows in one file ({e})", crate::error::tib(len as u128));
+        return Error::io(path, std::io::Error::new(e.kind(), problem));
+    }
+    Error::io(path, e)
+}
+
 /// A writable mapping of a fresh file (the scratch grids).
 struct MappedFile {
     _file: File, // held for the mapping's lifetime
@@ -108,7 +119,7 @@ struct MappedFile {
 
 impl MappedFile {
     fn create(file: File, len: u64, path: &Path) -> Result<MappedFile> {
-        file.set_len(len).at(path)?;
+        file.set_len(len).map_err(|e| file_system_limit(e, path, len))?;
         // SAFETY: the file was just created by this process (a temporary or unlinked file nobody
         // else knows of) and sized above; it is mapped once and lives as long as the map.
         let map = unsafe { MmapMut::map_mut(&file) }.at(path)?;
@@ -323,12 +334,31 @@ fn convert_source(
     }
     let side = grid.size() as usize;
     let vertices = grid.vertices() as usize;
+    // The output is mapped whole when read, and both scratch grids (4 + 8 bytes a post) are mapped
+    // whole here: refuse what cannot be mapped (or overflows u64) before creating anything.
+    let too_large = |what, bytes: u128| {
+        (bytes > MAX_MAPPED_BYTES as u128).then(|| Error::TooLargeToMap {
+            path: input.into(),
+            side: grid.size() as u64,
+            what,
+            bytes,
+            limit: MAX_MAPPED_BYTES,
+        })
+    };
+    let file_bytes = layout.records() as u128 * RECORD_BYTES as u128 + PAYLOAD_OFFSET as u128;
+    if let Some(e) =
+        too_large("terrain file", file_bytes).or_else(|| too_large("conversion scratch", grid.vertices() as u128 * 12))
+    {
+        return Err(e);
+    }
     let payload_bytes = layout.records() * RECORD_BYTES as u64;
     let out_tmp = temp_in(&out_dir, output)?;
     // The output is written once, sequentially, with positioned writes (no page faults, no
     // zero-filling of fresh pages); blocks of unused index slots are left as holes.
     let out_file = out_tmp.reopen().at(output)?;
-    out_file.set_len(PAYLOAD_OFFSET + payload_bytes).at(output)?;
+    out_file
+        .set_len(PAYLOAD_OFFSET + payload_bytes)
+        .map_err(|e| file_system_limit(e, output, PAYLOAD_OFFSET + payload_bytes))?;
     // Scratch: heights and bounds in separate row-major grids, so each scratch page is written
     // once (heights while reading, bounds while preprocessing) and never re-dirtied after the
     // kernel has written it back.

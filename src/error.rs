@@ -32,6 +32,9 @@ pub enum Error {
     Checksum { path: PathBuf, which: &'static str, stored: u64, computed: u64 },
     #[error("{}: grid too large: {width} x {height} needs more than 2^{max_n} + 1 posts per side", path.display())]
     GridTooLarge { path: PathBuf, width: u64, height: u64, max_n: u32 },
+    /// A grid whose terrain file or conversion scratch cannot be mapped (`mapped::MAX_MAPPED_BYTES`).
+    #[error("{}: a {side}² grid needs {} of {what}, more than the {} one process can map", path.display(), tib(*bytes), tib(*limit as u128))]
+    TooLargeToMap { path: PathBuf, side: u64, what: &'static str, bytes: u128, limit: u64 },
     /// A flight-path file (`relief path`) that could not be parsed or holds an unusable frame.
     #[error("{}: {problem}", path.display())]
     BadPath { path: PathBuf, problem: String },
@@ -69,6 +72,11 @@ pub enum Error {
     /// The buffer pool (`pool`) could not start its I/O thread, or a block loader panicked.
     #[error("buffer pool: {0}")]
     Pool(String),
+}
+
+/// Bytes in TiB with two decimals (the sizes [`Error::TooLargeToMap`] speaks of).
+pub(crate) fn tib(bytes: u128) -> String {
+    format!("{:.2} TiB", bytes as f64 / (1u64 << 40) as f64)
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -9,6 +9,11 @@ use memmap2::Mmap;
 
 use crate::error::{Error, IoContext, Result};
 
+/// The most bytes relief maps at once: 128 TiB, the user address space of x86-64 and AArch64
+/// with 48-bit virtual addresses. Terrain files are mapped whole, and a conversion maps its
+/// scratch grids whole, so a grid needing more is refused before anything is written.
+pub const MAX_MAPPED_BYTES: u64 = 1 << 47;
+
 /// Maps `file` (opened from `path`, `file_len` bytes long by its metadata) read-only, records
 /// `path` for the SIGBUS report, and checks the map covers the whole file.
 ///

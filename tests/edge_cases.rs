@@ -1,19 +1,27 @@
 //! Numeric edge cases end to end (issue 8): flat ground, a single spike, 10 km cliffs, void-only
 //! rows, 2×2 and 3×3 grids each convert in every layout, verify, refine crack-free for random
-//! cameras and render; a grid larger than the index type allows is refused before anything is
-//! allocated. Inputs are ESRI ASCII grids written here (small, exact, readable).
+//! cameras and render; the largest grid the index type allows, (2^31 + 1)², is checked through a
+//! virtual record source (every layout's index arithmetic, crack-free refinement down to single
+//! posts), since its file cannot exist; grids whose file could not be mapped, and grids larger than
+//! the index type allows, are refused before anything is allocated. Inputs are ESRI ASCII grids
+//! written here (small, exact, readable).
 
 mod common;
 
 use std::path::{Path, PathBuf};
 
 use common::crack::{convert_all, crack_free_everywhere};
+use glam::DVec3;
+use relief::camera::Camera;
 use relief::fly::render_still;
-use relief::format::TerrainFile;
-use relief::hierarchy::{Grid, MAX_N};
+use relief::format::{Record, TerrainFile};
+use relief::hierarchy::{split_children, Grid, VertexKind, MAX_N};
 use relief::inspect::verify;
+use relief::layout::{AnyLayout, Layout, LayoutKind, LayoutVisitor};
+use relief::mesh_check::{check_strip, MeshCheck};
+use relief::metric::Isotropic;
 use relief::progress::Progress;
-use relief::refine::RefineOptions;
+use relief::refine::{RecordSource, RefineOptions, Refiner, Strip, View};
 use relief::render::DrawStyle;
 
 /// Writes an ASCII grid of `rows` (north first); `None` is the nodata value −9999.
@@ -168,6 +176,161 @@ fn the_largest_grid_is_computed_without_overflow_and_a_larger_one_is_refused_at_
     assert_eq!(o.status.code(), Some(1), "{e}");
     assert!(e.trim_end().lines().count() == 1 && e.contains("huge.asc"), "{e}");
     assert!(!out.exists());
+    // Grids inside the index type whose file could not be mapped (more than 128 TiB: the terrain
+    // file, 12 B a record, or the 12 B a post of conversion scratch), up to the largest, n = 31,
+    // whose byte counts overflow u64: refused from the header, before any file is created.
+    for (n, layout) in [(22, "hz"), (22, "row-major"), (30, "interleaved"), (MAX_N, "interleaved"), (MAX_N, "hz")] {
+        let asc = dir.path().join(format!("wide{n}_{layout}.asc"));
+        let side = (1u64 << n) + 1;
+        std::fs::write(&asc, format!("ncols {side}\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 1\n1 2 3\n")).unwrap();
+        let out = dir.path().join(format!("wide{n}_{layout}.relief"));
+        let o =
+            common::relief().arg("convert").arg(&asc).arg(&out).args(["--quiet", "--layout", layout]).output().unwrap();
+        let e = common::stderr_of(&o);
+        assert_eq!(o.status.code(), Some(1), "n = {n}: {e}");
+        assert!(e.trim_end().lines().count() == 1, "n = {n}: {e}");
+        assert!(
+            e.contains(&format!("wide{n}_{layout}.asc: a {side}² grid needs"))
+                && e.contains("128.00 TiB one process can map"),
+            "{e}"
+        );
+        assert!(!out.exists());
+    }
+    let leftovers: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(leftovers.len(), 1 + 5, "only the inputs remain: {leftovers:?}");
+}
+
+/// A virtual terrain on the largest grid (2^31 + 1)²: flat ground whose records carry nested
+/// errors and radii that depend only on the vertex's step, so nesting holds by construction:
+/// error `0.05·h` (×1.5 for square centres, which are a half level coarser) and radius `c·h` with
+/// `c = 4.6` for square centres and `3.2` for edge midpoints, where `h` is the step in posts at
+/// 1 m spacing. A square centre's children are edge midpoints at the same step, `h` away
+/// (4.6 ≥ 1 + 3.2); an edge midpoint's are square centres at `h/2`, `h/√2` away (3.2 ≥ 0.71 +
+/// 2.3). The file such a grid needs (4.6·10^18 posts × 12 B) cannot exist, so this is how the
+/// layouts and the refinement are checked at the index type's limit.
+struct LargestGridRecords<L: Layout> {
+    layout: L,
+}
+
+impl<L: Layout> LargestGridRecords<L> {
+    fn at(&self, x: u32, y: u32) -> Record {
+        let grid = self.layout.grid();
+        let (scale, c) = match grid.kind(x, y) {
+            VertexKind::Corner => return Record { z: 0.0, error: f32::INFINITY, radius: f32::INFINITY },
+            VertexKind::SquareCentre { step } => (step as f64, (1.5, 4.6)),
+            VertexKind::EdgeMidpoint { step } => (step as f64, (1.0, 3.2)),
+        };
+        Record { z: 0.0, error: (0.05 * c.0 * scale) as f32, radius: (c.1 * scale) as f32 }
+    }
+}
+
+impl<L: Layout> RecordSource for LargestGridRecords<L> {
+    fn record(&self, index: u64) -> Record {
+        let (x, y) = self.layout.coords(index).unwrap_or_else(|| panic!("index {index} holds no vertex"));
+        self.at(x, y)
+    }
+}
+
+/// Every layout's index arithmetic at n = MAX_N: indices in range, distinct, and mapped back to
+/// their posts; the layouts' child shortcuts equal the coordinate rule; refinement from eyes near
+/// the far corner, the centre and the west edge gives the same strip in every layout, and that
+/// strip is a crack-free mesh of exactly the active vertices, reaching level 1 (single posts).
+#[test]
+fn the_largest_grid_refines_crack_free_in_every_layout() {
+    let grid = Grid::new(MAX_N).unwrap();
+    let m = grid.max_coord();
+    let layouts: Vec<AnyLayout> =
+        LayoutKind::ALL.iter().map(|&k| AnyLayout::new(k, grid, 0, relief::format::RECORD_BYTES).unwrap()).collect();
+    let mut samples: Vec<(u32, u32)> = Vec::new();
+    // The posts of the four 24 × 24 corner blocks, the centre's block and a block on each edge.
+    let h = m / 2;
+    for (x0, y0) in [(0, 0), (m - 23, 0), (0, m - 23), (m - 23, m - 23), (h - 12, h - 12), (h - 12, 0), (0, h - 12)] {
+        for dy in 0..24 {
+            for dx in 0..24 {
+                samples.push((x0 + dx, y0 + dy));
+            }
+        }
+    }
+    let mut rng = common::crack::Rng(31);
+    for _ in 0..20_000 {
+        let (x, y) = ((rng.next() % (m as u64 + 1)) as u32, (rng.next() % (m as u64 + 1)) as u32);
+        samples.push((x, y));
+    }
+    for layout in &layouts {
+        let name = layout.kind().name();
+        assert!(layout.records() >= grid.vertices(), "{name}: {} records", layout.records());
+        let mut seen = std::collections::HashMap::new();
+        for &(x, y) in &samples {
+            let i = layout.index(x, y);
+            assert!(i < layout.records(), "{name}: ({x}, {y}) → {i} ≥ {}", layout.records());
+            assert_eq!(layout.coords(i), Some((x, y)), "{name}: index {i}");
+            if let Some(other) = seen.insert(i, (x, y)) {
+                assert_eq!(other, (x, y), "{name}: ({x}, {y}) and {other:?} share index {i}");
+            }
+        }
+        assert_eq!(layout.coords(layout.records()), None, "{name}: one past the end");
+        // Random descents from the root triangles to level 1: the layout's child computation (an
+        // index shortcut in some layouts) gives the coordinate rule's posts and their indices.
+        let (c, mids) = (grid.centre(), grid.edge_midpoints());
+        for d in 0..2_000 {
+            let (mut apex, mut split) = (layout.vertex(c.0, c.1), {
+                let e = mids[d % 4];
+                layout.vertex(e.0, e.1)
+            });
+            while grid.level(split.x, split.y) > 1 {
+                let children = layout.split_children(apex, split);
+                let want = split_children((apex.x, apex.y), (split.x, split.y)).map(|(x, y)| layout.vertex(x, y));
+                assert_eq!(children, want, "{name}: children of {split:?} from {apex:?}");
+                (apex, split) = (split, children[(rng.next() % 2) as usize]);
+            }
+        }
+    }
+
+    let views = [
+        (DVec3::new(m as f64 - 300.0, m as f64 - 200.0, 6.0), DVec3::new(m as f64 - 5000.0, m as f64 - 9000.0, 0.0)),
+        (DVec3::new(h as f64 + 0.5, h as f64 - 100.0, 3.0), DVec3::new(h as f64 + 3000.0, h as f64 + 5000.0, 0.0)),
+        (DVec3::new(30.0, h as f64 + 7.0, 4.0), DVec3::new(2000.0, h as f64 - 900.0, 0.0)),
+    ];
+    let mut refiner = Refiner::new(1).unwrap();
+    for (k, (eye, look)) in views.into_iter().enumerate() {
+        let camera = Camera::new(eye, look, DVec3::Z, 60.0, 640, 400).unwrap();
+        for cull in [true, false] {
+            let options = RefineOptions { tolerance_px: 1.0, cull, ..RefineOptions::default() };
+            let view = View::new(&camera, &options, Isotropic, [1.0, 1.0], [m as f64, m as f64], [0.0, 0.0]);
+            let mut first: Option<Strip> = None;
+            for layout in &layouts {
+                struct Go<'a> {
+                    refiner: &'a mut Refiner,
+                    view: &'a View<Isotropic>,
+                    strip: &'a mut Strip,
+                }
+                impl LayoutVisitor for Go<'_> {
+                    type Output = MeshCheck;
+                    fn visit<L: Layout>(self, layout: &L) -> MeshCheck {
+                        let records = LargestGridRecords { layout: layout.clone() };
+                        self.refiner.refine(layout, &records, self.view, self.strip);
+                        let grid = layout.grid();
+                        check_strip(grid, self.strip, |x, y| {
+                            self.view.is_active(x, y, grid.level(x, y), records.at(x, y))
+                        })
+                    }
+                }
+                let mut strip = Strip::new();
+                let c = layout.visit(Go { refiner: &mut refiner, view: &view, strip: &mut strip });
+                let name = layout.kind().name();
+                assert!(c.crack_free && c.inactive_vertices == 0, "view {k} cull {cull} {name}: {c:?}");
+                match &first {
+                    None => {
+                        let finest = strip.vertices.iter().map(|v| grid.level(v.x, v.y)).min().unwrap();
+                        assert_eq!(finest, 1, "view {k}: the mesh reaches single posts near the eye");
+                        assert!(c.triangles > 1_000, "view {k}: {} triangles", c.triangles);
+                        first = Some(strip);
+                    }
+                    Some(s) => assert_eq!(s.vertices, strip.vertices, "view {k} cull {cull}: {name} differs"),
+                }
+            }
+        }
+    }
 }
 
 /// A conversion killed at any moment (SIGKILL: no clean-up runs) leaves the output path holding
