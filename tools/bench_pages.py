@@ -95,7 +95,7 @@ def med(xs):
 
 
 def table(inputs, work):
-    print("| input | layout | triangles | pages (MB) | build s | pages/frame | seek pages/frame "
+    print("| input | layout | triangles | pages (MiB) | build s | pages/frame | seek pages/frame "
           "| triangles/frame | warm fetch ms | cold fetch ms | cold reads ms | cold fetch fps | cold vs raster |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for name in inputs:
@@ -114,7 +114,7 @@ def table(inputs, work):
             b, w, c = builds[layout], warm[layout], cold[layout]
             pf = lambda runs, k: med([s[k] for s in runs])
             build_s = (b["layout_ms"] + b["write_ms"]) / 1000
-            print(f"| {NAMES[name]} | {layout} | {b['triangles']:,} | {b['pages']:,} ({b['file_bytes'] / 1e6:.1f}) "
+            print(f"| {NAMES[name]} | {layout} | {b['triangles']:,} | {b['pages']:,} ({b['file_bytes'] / 2**20:.1f}) "
                   f"| {build_s:.1f} | {pf(c, 'pages_mean'):,.0f} | {pf(c, 'seek_pages_mean'):,.0f} "
                   f"| {med([s['triangles_mean'] for s in c]):,.0f} | {pf(w, 'fetch_ms_mean'):.2f} "
                   f"| {cold_ms[layout]:.2f} | {pf(c, 'read_ms_mean'):.2f} | {1000 / cold_ms[layout]:,.0f} "
