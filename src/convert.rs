@@ -334,37 +334,31 @@ fn convert_source(
     }
     let side = grid.size() as usize;
     let vertices = grid.vertices() as usize;
-    // The output is mapped whole when read, and both scratch grids (4 + 8 bytes a post) are mapped
-    // whole here: refuse what cannot be mapped (or overflows u64) before creating anything.
-    let too_large = |what, bytes: u128| {
-        (bytes > MAX_MAPPED_BYTES as u128).then(|| Error::TooLargeToMap {
-            path: input.into(),
-            side: grid.size() as u64,
-            what,
-            bytes,
-            limit: MAX_MAPPED_BYTES,
-        })
-    };
-    let file_bytes = layout.records() as u128 * RECORD_BYTES as u128 + PAYLOAD_OFFSET as u128;
-    if let Some(e) =
-        too_large("terrain file", file_bytes).or_else(|| too_large("conversion scratch", grid.vertices() as u128 * 12))
-    {
-        return Err(e);
+    // Sizes in u128 (at n = 31 they overflow u64). The output is mapped whole when read, and both
+    // scratch grids are mapped whole here: refuse what cannot be mapped before creating anything.
+    let file_len = layout.records() as u128 * RECORD_BYTES as u128 + PAYLOAD_OFFSET as u128;
+    let z_len = grid.vertices() as u128 * std::mem::size_of::<f32>() as u128;
+    let bounds_len = grid.vertices() as u128 * std::mem::size_of::<[f32; 2]>() as u128;
+    for (what, bytes) in [("terrain file", file_len), ("conversion scratch", z_len + bounds_len)] {
+        if bytes > MAX_MAPPED_BYTES as u128 {
+            let side = grid.size() as u64;
+            return Err(Error::TooLargeToMap { path: input.into(), side, what, bytes, limit: MAX_MAPPED_BYTES });
+        }
     }
-    let payload_bytes = layout.records() * RECORD_BYTES as u64;
+    // Each is at most MAX_MAPPED_BYTES now, so fits in u64.
+    let (file_len, z_len, bounds_len) = (file_len as u64, z_len as u64, bounds_len as u64);
+    let payload_bytes = file_len - PAYLOAD_OFFSET;
     let out_tmp = temp_in(&out_dir, output)?;
     // The output is written once, sequentially, with positioned writes (no page faults, no
     // zero-filling of fresh pages); blocks of unused index slots are left as holes.
     let out_file = out_tmp.reopen().at(output)?;
-    out_file
-        .set_len(PAYLOAD_OFFSET + payload_bytes)
-        .map_err(|e| file_system_limit(e, output, PAYLOAD_OFFSET + payload_bytes))?;
+    out_file.set_len(file_len).map_err(|e| file_system_limit(e, output, file_len))?;
     // Scratch: heights and bounds in separate row-major grids, so each scratch page is written
     // once (heights while reading, bounds while preprocessing) and never re-dirtied after the
     // kernel has written it back.
     let scratch_dir = opts.scratch_dir.clone().unwrap_or_else(|| out_dir.clone());
-    let mut z_map = MappedFile::scratch(&scratch_dir, vertices as u64 * 4)?;
-    let mut bounds_map = MappedFile::scratch(&scratch_dir, vertices as u64 * 8)?;
+    let mut z_map = MappedFile::scratch(&scratch_dir, z_len)?;
+    let mut bounds_map = MappedFile::scratch(&scratch_dir, bounds_len)?;
     let z_grid: &mut [f32] = z_map.as_mut();
     let bounds_grid: &mut [[f32; 2]] = bounds_map.as_mut();
 
@@ -501,7 +495,7 @@ fn convert_source(
         nodata_filled: nan_count,
         z_min,
         z_max,
-        file_bytes: PAYLOAD_OFFSET + payload_bytes,
+        file_bytes: file_len,
         seconds,
         steps,
         vertices_per_s: grid.vertices() as f64 / seconds,
