@@ -64,13 +64,15 @@ def source(name, work):
     sys.exit(f"bench_pages: unknown input {name} (one of {', '.join(NAMES)})")
 
 
-def prepare(name, work):
-    """Page files in every layout and the path; returns ({layout: build report}, path)."""
+def prepare(name, work, rebuild=True):
+    """Page files in every layout and the path; returns ({layout: build report}, path). Without
+    `rebuild`, page files already in `work` (from a table run) are kept and get no report."""
     src = source(name, work)
     builds = {}
     for layout in LAYOUTS:
         out = work / f"{name}_{layout}.rpg"
-        builds[layout] = relief_json("pages", "build", src, out, "--layout", layout, "--quiet")
+        if rebuild or not out.exists():
+            builds[layout] = relief_json("pages", "build", src, out, "--layout", layout, "--quiet")
     path = work / f"{name}_fly.json"
     if not path.exists():
         run([RELIEF, "path", "flyover", work / f"{name}_raster.rpg", "--frames", args.frames, "--out", path])
@@ -126,11 +128,11 @@ def cap(inputs, work):
     print("| input | layout | cap | fetch ms (each run) | reads ms | vs raster |")
     print("|---|---|---:|---:|---:|---:|")
     for name in inputs:
-        builds, path = prepare(name, work)
+        _, path = prepare(name, work, rebuild=False)
         caps, fetch, reads = {}, {}, {}
         for layout in LAYOUTS:
             rss, _ = peak_rss_fly(name, layout, path, work, "--no-render", "--cold")
-            caps[layout] = rss + builds[layout]["file_bytes"] // 4
+            caps[layout] = rss + (work / f"{name}_{layout}.rpg").stat().st_size // 4
         for _ in range(args.rounds):
             for layout in LAYOUTS:
                 s = fly(name, layout, path, work, "--no-render", "--cold", "--cap", str(caps[layout]))
@@ -146,7 +148,7 @@ def render(inputs, work):
     print("| input | layout | fetch ms | render ms (median) | frame ms (median) | fps |")
     print("|---|---|---:|---:|---:|---:|")
     for name in inputs:
-        _, path = prepare(name, work)
+        _, path = prepare(name, work, rebuild=False)
         for layout in LAYOUTS:
             s = fly(name, layout, path, work, "--width", "640", "--height", "360")
             print(f"| {NAMES[name]} | {layout} | {s['fetch_ms_mean']:.2f} | {s['render_ms_median']:.1f} "
