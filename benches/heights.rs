@@ -7,11 +7,11 @@ use std::hint::black_box;
 use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use relief::convert::{convert, ConvertOptions};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
-use relief::progress::Progress;
+use relief::preprocess::convert::{convert, ConvertOptions};
 use relief::render::heights::{fill_tile, HeightTiling};
+use relief::sys::progress::Progress;
 
 fn bench(c: &mut Criterion) {
     let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/dem/zurich_25m_i16.tif");

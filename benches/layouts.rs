@@ -4,7 +4,7 @@
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use relief::hierarchy::{split_children, Grid};
+use relief::layout::hierarchy::{split_children, Grid};
 use relief::layout::{Embedded, Hz, Interleaved, Layout, RowMajor, Tiled, Vertex};
 
 const N: u32 = 12;

@@ -9,10 +9,10 @@ use std::path::Path;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glam::DVec3;
 use relief::camera::Camera;
-use relief::convert::{convert, ConvertOptions};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::pager::{LruCache, LruTrace, NoTrace, PageGeometry, PagedRecords};
+use relief::preprocess::convert::{convert, ConvertOptions};
 use relief::refine::{RefineOptions, Refiner, Strip};
 
 fn bench(c: &mut Criterion) {

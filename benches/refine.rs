@@ -11,9 +11,9 @@ use std::path::Path;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::DVec3;
 use relief::camera::Camera;
-use relief::convert::{convert, ConvertOptions};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
+use relief::preprocess::convert::{convert, ConvertOptions};
 use relief::refine::{RefineOptions, Refiner, Strip};
 
 /// A low oblique view from the south edge across the terrain, 1920 × 1080, 60°.

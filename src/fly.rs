@@ -1,178 +1,21 @@
-//! Flying: refinement feeding the renderer, on one thread (synchronous, for benchmarks and
-//! headless output) or on its own thread through a mailbox, so the render thread draws the newest
-//! finished strip and never waits for refinement.
-//!
-//! The mailbox holds one value: a newer one replaces an unread older one (latest wins, never a
-//! queue), and the replaced strip goes back to the refinement thread for reuse, so steady flight
-//! allocates nothing per frame.
+//! Flying over terrains with the GPU: the strip source that feeds the renderer, headless flights
+//! and stills.
 
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard};
-use std::thread::JoinHandle;
+use std::sync::Arc;
 use std::time::Instant;
 
 use serde::Serialize;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::format::TerrainFile;
-use crate::mem;
-use crate::progress::Progress;
+use crate::flight::terrain::refine_once;
+pub use crate::flight::terrain::{median, Mailbox, RefineJob, RefineThread, Refined};
+use crate::format::terrain::TerrainFile;
 use crate::refine::{RefineCounters, RefineOptions, Refiner, Strip};
 use crate::render::{DrawStyle, FrameView, Gpu, Offscreen, TerrainRenderer};
+use crate::sys::progress::Progress;
 
-/// A one-slot mailbox: `put` replaces, `take` never blocks, `wait` blocks until a value arrives or
-/// the mailbox is closed.
-pub struct Mailbox<T> {
-    slot: Mutex<(Option<T>, bool)>,
-    ready: Condvar,
-}
-
-impl<T> Default for Mailbox<T> {
-    fn default() -> Self {
-        Mailbox { slot: Mutex::new((None, false)), ready: Condvar::new() }
-    }
-}
-
-impl<T> Mailbox<T> {
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    fn lock(&self) -> MutexGuard<'_, (Option<T>, bool)> {
-        // A panic while holding this lock cannot leave the slot inconsistent: keep going.
-        self.slot.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
-    /// Puts `value`, returning the unread value it replaced.
-    pub fn put(&self, value: T) -> Option<T> {
-        let old = self.lock().0.replace(value);
-        self.ready.notify_one();
-        old
-    }
-
-    /// The value, if one is there (never blocks).
-    pub fn take(&self) -> Option<T> {
-        self.lock().0.take()
-    }
-
-    /// Blocks until a value is there (returns it) or the mailbox is closed (returns `None`).
-    pub fn wait(&self) -> Option<T> {
-        let mut slot = self.lock();
-        loop {
-            if let Some(v) = slot.0.take() {
-                return Some(v);
-            }
-            if slot.1 {
-                return None;
-            }
-            slot = self.ready.wait(slot).unwrap_or_else(|p| p.into_inner());
-        }
-    }
-
-    /// Wakes every waiter; later `wait`s return what is left, then `None`.
-    pub fn close(&self) {
-        self.lock().1 = true;
-        self.ready.notify_all();
-    }
-}
-
-/// A refinement request: the newest camera and options.
-#[derive(Clone, Copy, Debug)]
-pub struct RefineJob {
-    pub camera: Camera,
-    pub options: RefineOptions,
-    /// Caller's sequence number, returned with the result (lag = current − this).
-    pub seq: u64,
-}
-
-/// A finished strip and how it was made.
-#[derive(Debug)]
-pub struct Refined {
-    pub strip: Strip,
-    pub counters: RefineCounters,
-    pub refine_ms: f64,
-    pub job: RefineJob,
-    /// Page faults (major, minor) of the process during this refinement.
-    pub faults: (u64, u64),
-}
-
-fn refine_once(refiner: &mut Refiner, terrain: &TerrainFile, job: RefineJob, mut strip: Strip) -> Refined {
-    let faults0 = mem::page_faults();
-    let t0 = Instant::now();
-    let counters = refiner.refine_file(terrain, &job.camera, &job.options, &mut strip);
-    let refine_ms = t0.elapsed().as_secs_f64() * 1e3;
-    let faults1 = mem::page_faults();
-    Refined { strip, counters, refine_ms, job, faults: (faults1.0 - faults0.0, faults1.1 - faults0.1) }
-}
-
-/// Refinement on its own thread: give it the newest camera with [`Self::request`], collect the
-/// newest strip with [`Self::take`].
-pub struct RefineThread {
-    jobs: Arc<Mailbox<RefineJob>>,
-    done: Arc<Mailbox<Refined>>,
-    spare: Arc<Mutex<Vec<Strip>>>,
-    handle: Option<JoinHandle<()>>,
-}
-
-impl RefineThread {
-    /// Starts the thread; refinement itself uses `threads` threads.
-    pub fn spawn(terrain: Arc<TerrainFile>, threads: usize) -> Result<RefineThread> {
-        let mut refiner = Refiner::new(threads)?;
-        let jobs = Arc::new(Mailbox::<RefineJob>::new());
-        let done = Arc::new(Mailbox::<Refined>::new());
-        let spare = Arc::new(Mutex::new(Vec::<Strip>::new()));
-        let (j, d, s) = (jobs.clone(), done.clone(), spare.clone());
-        let handle = std::thread::Builder::new()
-            .name("relief-refine".into())
-            .spawn(move || {
-                while let Some(job) = j.wait() {
-                    let strip = s.lock().unwrap_or_else(|p| p.into_inner()).pop().unwrap_or_default();
-                    let refined = refine_once(&mut refiner, &terrain, job, strip);
-                    if let Some(stale) = d.put(refined) {
-                        s.lock().unwrap_or_else(|p| p.into_inner()).push(stale.strip);
-                    }
-                }
-            })
-            .map_err(|e| Error::InvalidArgument(format!("cannot start the refinement thread: {e}")))?;
-        Ok(RefineThread { jobs, done, spare, handle: Some(handle) })
-    }
-
-    /// Asks for a strip for `job`, replacing any request not yet started.
-    pub fn request(&self, job: RefineJob) {
-        self.jobs.put(job);
-    }
-
-    /// The newest finished strip, if any (never blocks).
-    pub fn take(&self) -> Option<Refined> {
-        self.done.take()
-    }
-
-    /// Blocks until a strip is finished (first frame, synchronous use).
-    pub fn wait(&self) -> Option<Refined> {
-        self.done.wait()
-    }
-
-    /// Gives a drawn strip back for reuse.
-    pub fn recycle(&self, strip: Strip) {
-        let mut spare = self.spare.lock().unwrap_or_else(|p| p.into_inner());
-        if spare.len() < 4 {
-            spare.push(strip);
-        }
-    }
-}
-
-impl Drop for RefineThread {
-    fn drop(&mut self) {
-        self.jobs.close();
-        self.done.close();
-        if let Some(h) = self.handle.take() {
-            let _ = h.join();
-        }
-    }
-}
-
-/// Where strips come from: the calling thread, or the refinement thread.
 pub enum StripSource {
     Sync { refiner: Refiner, terrain: Arc<TerrainFile>, strip: Strip },
     Thread { thread: RefineThread, last_request: Option<(Camera, RefineOptions)> },
@@ -312,23 +155,14 @@ pub struct FlyReport {
     pub summary: FlySummary,
 }
 
-/// The median of `v` (mean of the middle two for an even count), 0 when empty.
-pub fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 /// Writes `image` to `path` as PNG, atomically (never half-written).
-pub fn save_png(image: &image::RgbaImage, path: &Path) -> Result<()> {
-    crate::atomic_file::write_png(image, path)
+pub fn save_png<P, C>(image: &image::ImageBuffer<P, C>, path: &Path) -> Result<()>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    crate::sys::atomic_file::write(path, |w| image.write_to(w, image::ImageFormat::Png).map_err(std::io::Error::other))
 }
 
 /// Renders `cameras` one frame each, offscreen, and reports per-frame figures.
@@ -360,7 +194,7 @@ pub fn fly_headless_on(
     let mut frames = Vec::with_capacity(cameras.len());
     let t_all = Instant::now();
     for (k, camera) in cameras.iter().enumerate() {
-        crate::cancel::check()?;
+        crate::sys::cancel::check()?;
         let t0 = Instant::now();
         let job = RefineJob { camera: *camera, options: options.refine, seq: k as u64 };
         let update = source.update(gpu, &mut renderer, job, k == 0);
@@ -416,7 +250,7 @@ pub fn fly_headless_on(
 }
 
 /// The bundled default terrain (`data/zurich_25m_i16.tif`), converted on first use into the
-/// user's cache directory ([`crate::convert::cache_dir`]).
+/// user's cache directory ([`crate::preprocess::convert::cache_dir`]).
 pub fn bundled_terrain(progress: Progress) -> Result<PathBuf> {
     const NAME: &str = "zurich_25m_i16.tif";
     let candidates = [Path::new("data").join(NAME), Path::new(env!("CARGO_MANIFEST_DIR")).join("data").join(NAME)];
@@ -425,15 +259,15 @@ pub fn bundled_terrain(progress: Progress) -> Result<PathBuf> {
             "no FILE given and the bundled terrain data/{NAME} is not here; pass a terrain file"
         )));
     };
-    let cache = crate::convert::cache_dir();
+    let cache = crate::preprocess::convert::cache_dir();
     let out = cache.join("zurich_25m_i16.interleaved.relief");
     if TerrainFile::open(&out).is_ok() {
         return Ok(out);
     }
     std::fs::create_dir_all(&cache).map_err(|e| Error::io(&cache, e))?;
-    let mut opts = crate::convert::ConvertOptions::new(crate::layout::LayoutKind::Interleaved);
+    let mut opts = crate::preprocess::convert::ConvertOptions::new(crate::layout::LayoutKind::Interleaved);
     opts.progress = progress;
-    crate::convert::convert(dem, &out, &opts)?;
+    crate::preprocess::convert::convert(dem, &out, &opts)?;
     Ok(out)
 }
 
@@ -490,31 +324,4 @@ pub fn render_still(
         adapter: gpu.describe(),
     };
     Ok((image, report))
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn mailbox_keeps_only_the_newest_value() {
-        let m = Mailbox::new();
-        assert_eq!(m.take(), None::<u32>);
-        assert_eq!(m.put(1), None);
-        assert_eq!(m.put(2), Some(1), "an unread value is handed back when replaced");
-        assert_eq!(m.take(), Some(2));
-        assert_eq!(m.take(), None);
-    }
-
-    #[test]
-    fn mailbox_wait_wakes_on_put_and_on_close() {
-        let m = Arc::new(Mailbox::new());
-        let m2 = m.clone();
-        let t = std::thread::spawn(move || (m2.wait(), m2.wait()));
-        std::thread::sleep(std::time::Duration::from_millis(20));
-        m.put(7u32);
-        std::thread::sleep(std::time::Duration::from_millis(20));
-        m.close();
-        assert_eq!(t.join().unwrap(), (Some(7), None));
-    }
 }

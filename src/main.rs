@@ -13,22 +13,23 @@ use clap::{Args, Parser, Subcommand};
 use glam::DVec3;
 use relief::camera::Camera;
 use relief::camera::UpAxis;
-use relief::convert::{convert, ConvertOptions};
 use relief::dem::DemFormat;
+use relief::faults::{run_layouts, terrain_in_layout, LayoutsOptions};
 use relief::flight::FlightPath;
 use relief::flight::{flyover, flyover_box, orbit, orbit_box, FlyoverOptions, OrbitOptions};
 use relief::fly::{bundled_terrain, fly_headless, render_still, save_png, HeadlessOptions};
-use relief::format::TerrainFile;
-use relief::inspect;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
-use relief::layout_faults::{plot_report, run_layouts, terrain_in_layout, LayoutsOptions};
 use relief::mesh_fly::{fly_mesh_headless, MeshFlyOptions, MeshFrameSource, StaticMesh};
-use relief::metric::MetricKind;
-use relief::progress::Progress;
+use relief::plot::plot_report;
+use relief::preprocess::convert::{convert, ConvertOptions};
+use relief::preprocess::inspect;
+use relief::refine::metric::MetricKind;
+use relief::refine::report::{refine_report, ReportOptions};
 use relief::refine::RefineOptions;
-use relief::refine_report::{refine_report, ReportOptions};
 use relief::render::MeshStyle;
 use relief::render::{DrawStyle, Gpu};
+use relief::sys::progress::Progress;
 use relief::window::{check_display, fly_window, mesh_window, MeshWindowOptions, WindowOptions, WindowSettings};
 
 #[derive(Parser)]
@@ -719,11 +720,11 @@ enum VdtMetricArg {
     Quadric,
 }
 
-impl From<VdtMetricArg> for relief::vdtree::VdtMetric {
+impl From<VdtMetricArg> for relief::metanode::VdtMetric {
     fn from(m: VdtMetricArg) -> Self {
         match m {
-            VdtMetricArg::Length => relief::vdtree::VdtMetric::Length,
-            VdtMetricArg::Quadric => relief::vdtree::VdtMetric::Quadric,
+            VdtMetricArg::Length => relief::metanode::VdtMetric::Length,
+            VdtMetricArg::Quadric => relief::metanode::VdtMetric::Quadric,
         }
     }
 }
@@ -736,9 +737,9 @@ enum PrefetchArg {
     Frontier,
 }
 
-impl From<PrefetchArg> for relief::vdtree::navigate::Prefetch {
+impl From<PrefetchArg> for relief::metanode::navigate::Prefetch {
     fn from(p: PrefetchArg) -> Self {
-        use relief::vdtree::navigate::Prefetch;
+        use relief::metanode::navigate::Prefetch;
         match p {
             PrefetchArg::Paper => Prefetch::Paper,
             PrefetchArg::Parent => Prefetch::Parent,
@@ -829,7 +830,7 @@ fn up_parser() -> impl clap::builder::TypedValueParser<Value = UpAxis> {
 /// Whether `path` starts with the terrain file magic (a mesh otherwise; unreadable files are left
 /// to the mesh reader to report).
 fn is_terrain_file(path: &std::path::Path) -> bool {
-    has_magic(path, &relief::format::MAGIC)
+    has_magic(path, &relief::format::terrain::MAGIC)
 }
 
 /// Whether the file starts with these 8 bytes.
@@ -1121,7 +1122,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let report = fly_headless(terrain, &cameras, &options)?;
             if let Some(out) = &stats {
                 let text = serde_json::to_string_pretty(&report)?;
-                relief::atomic_file::write(out, |w| std::io::Write::write_all(w, text.as_bytes()))?;
+                relief::sys::atomic_file::write(out, |w| std::io::Write::write_all(w, text.as_bytes()))?;
             }
             let s = &report.summary;
             if json {
@@ -1213,11 +1214,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             if !input.exists() {
                 bail!("{}: no such file", input.display());
             }
-            let cache_dir = cache_dir.unwrap_or_else(|| relief::convert::cache_dir().join("layouts"));
+            let cache_dir = cache_dir.unwrap_or_else(|| relief::preprocess::convert::cache_dir().join("layouts"));
             let first = terrain_in_layout(&input, kinds[0], &cache_dir, progress(quiet))?;
             let memory_bytes = {
                 let t = TerrainFile::open(&first)?;
-                parse_memory(&memory, t.grid().vertices() * relief::format::RECORD_BYTES as u64)?
+                parse_memory(&memory, t.grid().vertices() * relief::format::terrain::RECORD_BYTES as u64)?
             };
             let cameras = path_cameras(&flight, &path, fov, width, height)?;
             let options = LayoutsOptions {
@@ -1295,8 +1296,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             } else if has_magic(file, &relief::pages::file::MAGIC) {
                 let bounds = relief::pages::file::PageFile::open(file)?.header().bounds;
                 PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
-            } else if has_magic(file, &relief::vdtree::metanode::MAGIC) {
-                let bounds = relief::vdtree::metanode::MetaNodeFile::open(file)?.header().bounds;
+            } else if has_magic(file, &relief::metanode::blocking::MAGIC) {
+                let bounds = relief::metanode::blocking::MetaNodeFile::open(file)?.header().bounds;
                 PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
             } else {
                 let mesh = relief::mesh::read_mesh(file)?;
@@ -1364,9 +1365,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             show_mesh(&mut source, &input, "static", flight, show)
         }
         Command::Mesh { kind: MeshCommand::Fly { file, mode, memory, cap, cold, prefetch, show } } => {
-            use relief::vdtree::metanode::MetaNodeFile;
-            use relief::vdtree::navigate::{ExtStore, NavOptions, Navigator, VirtStore};
-            use relief::vdtree::source::NavSource;
+            use relief::metanode::blocking::MetaNodeFile;
+            use relief::metanode::navigate::{ExtStore, NavOptions, Navigator, VirtStore};
+            use relief::metanode::source::NavSource;
             show.check()?;
             let flight = show.path.as_deref().map(FlightPath::load).transpose()?;
             if flight.is_none() {
@@ -1460,12 +1461,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             if memory_bytes == 0 {
                 bail!("--memory must be more than 0 bytes");
             }
-            let mut options = relief::vdtree::build::BuildOptions::new(memory_bytes, metric.into());
+            let mut options = relief::metanode::build::BuildOptions::new(memory_bytes, metric.into());
             options.progress = progress(quiet);
             if !page_bytes.is_power_of_two() || !(512..=1 << 20).contains(&page_bytes) {
                 bail!("--page-size must be a power of two from 512 bytes to 1M, got {page_bytes}");
             }
-            let blocking = relief::vdtree::metanode::BlockingOptions { levels_per_node, page_bytes: page_bytes as u32 };
+            let blocking =
+                relief::metanode::blocking::BlockingOptions { levels_per_node, page_bytes: page_bytes as u32 };
             // The forest goes to a temporary file beside the output unless --vdt keeps it.
             let dir = match output.parent() {
                 Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
@@ -1476,11 +1478,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 .tempdir_in(&dir)
                 .with_context(|| format!("{}: cannot create a scratch directory", dir.display()))?;
             let vdt_path = vdt.clone().unwrap_or_else(|| scratch.path().join("forest.vdt"));
-            let mut report = relief::vdtree::build::build_vdt_from_mesh(mesh, &vdt_path, &options)?;
+            let mut report = relief::metanode::build::build_vdt_from_mesh(mesh, &vdt_path, &options)?;
             // Ingest as the user waits for it: reading the file too.
             report.ingest_ms = start.elapsed().as_secs_f64() * 1e3 - report.build_ms;
-            let forest_file = relief::vdtree::VdtFile::open(&vdt_path)?;
-            let forest = relief::vdtree::metanode::Forest {
+            let forest_file = relief::metanode::VdtFile::open(&vdt_path)?;
+            let forest = relief::metanode::blocking::Forest {
                 nodes: forest_file.nodes(),
                 triangles: forest_file.triangles(),
                 base_triangles: forest_file.base_triangles().len(),
@@ -1488,13 +1490,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 metric: forest_file.metric() as u32,
                 bounds: forest_file.bounds(),
             };
-            let meta = relief::vdtree::metanode::write_metanode_file(&forest, blocking, &output)?;
+            let meta = relief::metanode::blocking::write_metanode_file(&forest, blocking, &output)?;
             drop(forest_file);
             #[derive(serde::Serialize)]
             struct MeshBuild<'a> {
                 #[serde(flatten)]
-                vdt: &'a relief::vdtree::build::BuildReport,
-                metanode: &'a relief::vdtree::metanode::MetaNodeReport,
+                vdt: &'a relief::metanode::build::BuildReport,
+                metanode: &'a relief::metanode::blocking::MetaNodeReport,
                 levels_per_node: u32,
                 page_bytes: u64,
             }
@@ -1648,9 +1650,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // Ctrl-C: ask long loops to stop, so temporary files are removed on the way out.
-    let _ = ctrlc::set_handler(relief::cancel::request);
+    let _ = ctrlc::set_handler(relief::sys::cancel::request);
     // A mapped file truncated under us: a one-line error, not a core dump.
-    relief::sigbus::install();
+    relief::sys::sigbus::install();
     match run(cli) {
         Ok(code) => code,
         Err(e) => {

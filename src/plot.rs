@@ -97,7 +97,7 @@ pub fn write_layouts_figure(out: &Path, fig: &Figure) -> Result<()> {
     }
     let image = image::RgbImage::from_raw(w, h, buf)
         .ok_or_else(|| Error::plot(out, "the drawing buffer does not match the image size"))?;
-    crate::atomic_file::write_png(&image, out)
+    crate::fly::save_png(&image, out)
 }
 
 /// The colour of a layout's curves: fixed for the five layouts (`row-major`, `tiled`,
@@ -459,4 +459,49 @@ mod tests {
         assert_eq!(log_axis_top(400), 1000.0);
         assert_eq!(log_axis_top(600), 10000.0);
     }
+}
+
+/// Draws the paper's two figures for `report` into `out` (PNG): cumulative faults per frame at the
+/// smallest τ, and total faults against τ, one line per layout.
+pub fn plot_report(report: &crate::faults::LayoutsReport, out: &Path) -> Result<()> {
+    let first_tau = report.layouts.iter().map(|r| r.tolerance).fold(f64::INFINITY, f64::min);
+    let mut labels: Vec<&str> = Vec::new();
+    for r in &report.layouts {
+        if !labels.contains(&r.layout.as_str()) {
+            labels.push(&r.layout);
+        }
+    }
+    let frames: Vec<FrameSeries> = labels
+        .iter()
+        .filter_map(|l| report.layouts.iter().find(|r| r.layout == *l && r.tolerance == first_tau))
+        .map(|r| FrameSeries {
+            label: r.layout.clone(),
+            cumulative_faults: r
+                .faults_per_frame
+                .iter()
+                .scan(0u64, |sum, f| {
+                    *sum += f;
+                    Some(*sum)
+                })
+                .collect(),
+        })
+        .collect();
+    let by_tolerance: Vec<ToleranceSeries> = labels
+        .iter()
+        .map(|l| ToleranceSeries {
+            label: l.to_string(),
+            points: report.layouts.iter().filter(|r| r.layout == *l).map(|r| (r.tolerance, r.faults)).collect(),
+        })
+        .collect();
+    let name = Path::new(&report.input).file_name().map_or(report.input.clone(), |n| n.to_string_lossy().into_owned());
+    let title = format!(
+        "{name}: {} frames, LRU cache {:.1} MiB of {} B pages",
+        report.frames,
+        report.memory_bytes as f64 / 1048576.0,
+        report.page_bytes
+    );
+    write_layouts_figure(
+        out,
+        &Figure { title: &title, frames: &frames, by_tolerance: &by_tolerance, frames_tolerance_px: first_tau },
+    )
 }

@@ -7,11 +7,11 @@ use common::{dem, REAL_DEMS};
 use std::path::Path;
 use std::process::Command;
 
-use relief::convert::{convert, ConvertOptions};
-use relief::format::TerrainFile;
-use relief::inspect;
+use relief::format::terrain::TerrainFile;
 use relief::layout::{Layout, LayoutKind};
-use relief::progress::Progress;
+use relief::preprocess::convert::{convert, ConvertOptions};
+use relief::preprocess::inspect;
+use relief::sys::progress::Progress;
 
 fn relief() -> Command {
     Command::new(env!("CARGO_BIN_EXE_relief"))
@@ -29,7 +29,7 @@ fn listing(dir: &Path) -> Vec<String> {
 fn every_real_dem_converts_to_every_layout_and_verifies() {
     let dir = tempfile::tempdir().unwrap();
     for name in REAL_DEMS {
-        let mut reference: Option<(TerrainFile, Vec<relief::format::Record>)> = None;
+        let mut reference: Option<(TerrainFile, Vec<relief::format::terrain::Record>)> = None;
         for kind in LayoutKind::ALL {
             let out = dir.path().join(format!("{name}.{kind}.relief"));
             let report =

@@ -14,15 +14,15 @@ use common::crack::{convert_all, crack_free_everywhere};
 use glam::DVec3;
 use relief::camera::Camera;
 use relief::fly::render_still;
-use relief::format::{Record, TerrainFile};
-use relief::hierarchy::{split_children, Grid, VertexKind, MAX_N};
-use relief::inspect::verify;
+use relief::format::terrain::{Record, TerrainFile};
+use relief::layout::hierarchy::{split_children, Grid, VertexKind, MAX_N};
 use relief::layout::{AnyLayout, Layout, LayoutKind, LayoutVisitor};
-use relief::mesh_check::{check_strip, MeshCheck};
-use relief::metric::Isotropic;
-use relief::progress::Progress;
+use relief::preprocess::inspect::verify;
+use relief::refine::check::{check_strip, MeshCheck};
+use relief::refine::metric::Isotropic;
 use relief::refine::{RecordSource, RefineOptions, Refiner, Strip, View};
 use relief::render::DrawStyle;
+use relief::sys::progress::Progress;
 
 /// Writes an ASCII grid of `rows` (north first); `None` is the nodata value −9999.
 fn asc(dir: &Path, name: &str, rows: &[Vec<Option<f64>>], cellsize_m: f64) -> PathBuf {
@@ -239,8 +239,10 @@ impl<L: Layout> RecordSource for LargestGridRecords<L> {
 fn the_largest_grid_refines_crack_free_in_every_layout() {
     let grid = Grid::new(MAX_N).unwrap();
     let m = grid.max_coord();
-    let layouts: Vec<AnyLayout> =
-        LayoutKind::ALL.iter().map(|&k| AnyLayout::new(k, grid, 0, relief::format::RECORD_BYTES).unwrap()).collect();
+    let layouts: Vec<AnyLayout> = LayoutKind::ALL
+        .iter()
+        .map(|&k| AnyLayout::new(k, grid, 0, relief::format::terrain::RECORD_BYTES).unwrap())
+        .collect();
     let mut samples: Vec<(u32, u32)> = Vec::new();
     // The posts of the four 24 × 24 corner blocks, the centre's block and a block on each edge.
     let h = m / 2;

@@ -11,11 +11,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use relief::camera::UpAxis;
-use relief::convert::{convert, ConvertOptions};
 use relief::flight::{flyover, flyover_box, orbit, orbit_box, FlightPath, FlyoverOptions, OrbitOptions, PathFrame};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::mesh::read_mesh;
+use relief::preprocess::convert::{convert, ConvertOptions};
 use relief::Error;
 
 /// Converts a real DEM into a terrain file in `dir`.

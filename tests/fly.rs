@@ -7,15 +7,15 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use common::{dem, relief, stderr_of, window_session};
-use relief::convert::{convert, ConvertOptions};
 use relief::flight::{flyover, FlyoverOptions};
 use relief::fly::{fly_headless, HeadlessOptions};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
-use relief::progress::Progress;
+use relief::preprocess::convert::{convert, ConvertOptions};
 use relief::refine::RefineOptions;
 use relief::render::terrain::{FRAME_UNIFORM_BYTES, VERTEX_BYTES};
 use relief::render::DrawStyle;
+use relief::sys::progress::Progress;
 
 fn zurich(dir: &Path) -> PathBuf {
     let out = dir.join("zurich.relief");

@@ -1,7 +1,7 @@
 //! Golden bytes of the version-1 header: any change to the on-disk format must change this test
 //! (and the version number) on purpose.
 
-use relief::format::{Header, PAYLOAD_OFFSET, RECORD_BYTES, RECORD_FORMAT_F32, VERSION};
+use relief::format::terrain::{Header, PAYLOAD_OFFSET, RECORD_BYTES, RECORD_FORMAT_F32, VERSION};
 use relief::layout::LayoutKind;
 
 fn golden_header() -> Header {

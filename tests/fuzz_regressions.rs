@@ -62,7 +62,7 @@ fn input(name: &str) -> PathBuf {
 /// open does not check it): every node's triangle list is readable, leaves' empty.
 #[test]
 fn vdt_leaf_with_a_wild_triangle_start() {
-    let f = relief::vdtree::VdtFile::open(&input("vdt-leaf-triangle-start.vdt")).unwrap();
+    let f = relief::metanode::VdtFile::open(&input("vdt-leaf-triangle-start.vdt")).unwrap();
     for id in 0..f.nodes().len() as u32 {
         let tris = f.node_triangles(id);
         assert!(id as u64 >= f.leaves() || tris.is_empty(), "leaf {id} has triangles");
@@ -74,7 +74,7 @@ fn vdt_leaf_with_a_wild_triangle_start() {
 #[test]
 fn metanode_entry_whose_offset_overflows() {
     let path = input("metanode-entry-offset-overflow.rmn");
-    let e = relief::vdtree::metanode::MetaNodeFile::open(&path).err().expect("an error").to_string();
+    let e = relief::metanode::blocking::MetaNodeFile::open(&path).err().expect("an error").to_string();
     assert!(e.contains("metanode-entry-offset-overflow.rmn") && e.contains("inconsistent"), "{e}");
     let dir = tempfile::tempdir().unwrap();
     let flight = dir.path().join("p.json");

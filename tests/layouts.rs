@@ -8,12 +8,12 @@ use std::path::Path;
 use std::process::Command;
 
 use common::dem;
-use relief::convert::{convert, relayout, ConvertOptions};
+use relief::faults::run_model;
 use relief::flight::{flyover, FlyoverOptions};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
-use relief::layout_faults::run_model;
 use relief::pager::{LruCache, LruTrace, NoTrace, PageGeometry, PagedRecords};
+use relief::preprocess::convert::{convert, relayout, ConvertOptions};
 use relief::refine::{RefineOptions, Refiner, Strip};
 
 fn relief() -> Command {

@@ -10,15 +10,15 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use common::crack::{random_camera, Rng};
-use relief::convert::{convert, ConvertOptions};
 use relief::flight::{flyover, orbit, FlyoverOptions, OrbitOptions};
 use relief::fly::{fly_headless_on, HeadlessOptions, RefineJob, RefineThread};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
-use relief::mem::rss_anon_bytes;
-use relief::progress::Progress;
+use relief::preprocess::convert::{convert, ConvertOptions};
 use relief::refine::RefineOptions;
 use relief::render::DrawStyle;
+use relief::sys::mem::rss_anon_bytes;
+use relief::sys::progress::Progress;
 
 const FRAMES: usize = 10_000;
 

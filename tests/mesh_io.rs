@@ -8,10 +8,10 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-use relief::convert::{convert, ConvertOptions};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::mesh::{read_mesh, read_mesh_with_report, terrain_mesh, write_ply_bytes, Mesh, MeshFormat, PlyEncoding};
+use relief::preprocess::convert::{convert, ConvertOptions};
 
 fn real_mesh(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/mesh").join(name)

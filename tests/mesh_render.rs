@@ -13,11 +13,11 @@ use relief::error::Result;
 use relief::flight::{orbit_box, OrbitOptions};
 use relief::mesh::{read_mesh, Bounds};
 use relief::mesh_fly::{fly_mesh_headless, MeshFlyOptions, MeshFrameSource, MeshFrameStats, MeshStage, StaticMesh};
-use relief::progress::Progress;
 use relief::render::mesh::MESH_VERTEX_BYTES;
 use relief::render::mesh_shade::{self, MeshShadeParams};
 use relief::render::offscreen::OFFSCREEN_FORMAT;
 use relief::render::{Gpu, MeshRenderer, MeshStyle};
+use relief::sys::progress::Progress;
 
 fn bunny() -> StaticMesh {
     StaticMesh::new(&read_mesh(&mesh("bunny.off")).unwrap()).unwrap()

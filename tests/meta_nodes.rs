@@ -11,10 +11,10 @@ use glam::DVec3;
 use relief::camera::{Camera, UpAxis};
 use relief::flight::{orbit_box, OrbitOptions};
 use relief::mesh::read_mesh;
-use relief::vdtree::build::{build_vdt_from_mesh, BuildOptions};
-use relief::vdtree::metanode::{write_metanode_file, BlockingOptions, Forest, MetaNodeFile};
-use relief::vdtree::navigate::{ExtStore, MetaStore, NavOptions, Navigator, Prefetch, VirtStore};
-use relief::vdtree::{VdtFile, VdtMetric};
+use relief::metanode::blocking::{write_metanode_file, BlockingOptions, Forest, MetaNodeFile};
+use relief::metanode::build::{build_vdt_from_mesh, BuildOptions};
+use relief::metanode::navigate::{ExtStore, MetaStore, NavOptions, Navigator, Prefetch, VirtStore};
+use relief::metanode::{VdtFile, VdtMetric};
 
 /// Builds `mesh` with `memory_bytes` into `dir/name.vdt` and `dir/name.rmn`.
 fn build(mesh: &Path, memory_bytes: u64, dir: &Path, name: &str, blocking: BlockingOptions) -> (u64, MetaNodeFile) {

@@ -11,15 +11,15 @@ use std::path::Path;
 
 use glam::DVec3;
 use relief::camera::{Camera, UpAxis};
-use relief::convert::{convert, ConvertOptions};
 use relief::flight::{flyover_box, FlyoverOptions};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::mesh::{read_mesh, terrain_mesh, Mesh};
 use relief::mesh_fly::MeshFrameSource;
 use relief::pages::fetch::{FetchOptions, PageSource};
 use relief::pages::file::{build_page_file, PageBuildOptions, PageFile, PageLayout};
 use relief::pages::kdtree::{box_in_frustum, query_frustum};
+use relief::preprocess::convert::{convert, ConvertOptions};
 
 /// Every triangle as its three corners' f32 bits, in winding order.
 type Corners = [[u32; 3]; 3];

@@ -15,12 +15,12 @@ use std::process::Command;
 
 use glam::DVec3;
 use relief::camera::Camera;
-use relief::convert::{convert, ConvertOptions};
 use relief::layout::LayoutKind;
-use relief::mesh_check::check_strip;
-use relief::metric::MetricKind;
+use relief::preprocess::convert::{convert, ConvertOptions};
+use relief::refine::check::check_strip;
+use relief::refine::metric::MetricKind;
+use relief::refine::report::{refine_report, ReportOptions};
 use relief::refine::{RefineOptions, Refiner, Strip, StripVertex};
-use relief::refine_report::{refine_report, ReportOptions};
 
 #[test]
 fn real_dems_are_crack_free_for_thousands_of_cameras_in_every_layout() {

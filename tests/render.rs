@@ -10,16 +10,16 @@ use std::sync::{Arc, Mutex, OnceLock};
 use common::{check_golden, compare, dem, gpu};
 use glam::DVec3;
 use relief::camera::Camera;
-use relief::convert::{convert, ConvertOptions};
 use relief::fly::{render_still, StillReport};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
-use relief::progress::Progress;
+use relief::preprocess::convert::{convert, ConvertOptions};
 use relief::refine::{RefineOptions, Refiner, Strip};
 use relief::render::offscreen::ProbeTargets;
 use relief::render::shade::{self, ShadeParams};
 use relief::render::terrain::{Probe, FRAME_UNIFORM_BYTES, MORPH_BYTES, VERTEX_BYTES};
 use relief::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
+use relief::sys::progress::Progress;
 
 /// Converted terrains by DEM name.
 type Converted = Vec<(String, Arc<TerrainFile>)>;

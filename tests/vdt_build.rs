@@ -24,8 +24,8 @@ use std::process::Command;
 use std::sync::OnceLock;
 
 use relief::mesh::{read_mesh, Mesh};
-use relief::vdtree::build::{build_vdt_from_mesh, BuildOptions, BuildReport};
-use relief::vdtree::{VdtFile, VdtMetric, NONE};
+use relief::metanode::build::{build_vdt_from_mesh, BuildOptions, BuildReport};
+use relief::metanode::{VdtFile, VdtMetric, NONE};
 
 /// What the sampled anonymous RSS of the build phase may exceed the budget by: the process's own
 /// anonymous memory before the build (runtime, libraries, what the mesh reader's allocations
@@ -466,7 +466,7 @@ fn missing_input_is_a_one_line_error() {
     let missing = dir.path().join("nope.off");
     let out = dir.path().join("out.vdt");
     let e =
-        relief::vdtree::build::build_vdt(&missing, &out, &BuildOptions::new(1 << 20, VdtMetric::Length)).unwrap_err();
+        relief::metanode::build::build_vdt(&missing, &out, &BuildOptions::new(1 << 20, VdtMetric::Length)).unwrap_err();
     assert_eq!(e.to_string(), format!("{}: No such file or directory (os error 2)", missing.display()));
     let (ok, stderr) = relief(&["mesh", "build", missing.to_str().unwrap(), out.to_str().unwrap(), "--memory", "1M"]);
     assert!(!ok);

@@ -119,7 +119,8 @@ fn write_tiff<W: Write + Seek, K: TiffKind>(mut enc: TiffEncoder<W, K>, args: &A
     // GeoKey directory: version 1.1.0, 1 key: GTModelTypeGeoKey (1024) = 1 (projected).
     image.encoder().write_tag(Tag::GeoKeyDirectoryTag, &[1u16, 1, 0, 1, 1024, 0, 1, 1][..])?;
     let mut strip = vec![0f32; (ROWS * n) as usize];
-    let bar = indicatif::ProgressBar::new(n as u64);
+    let bar = relief::sys::progress::Progress::new(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .bar("synth", n as u64, "rows");
     let mut y0 = 0;
     while y0 < n {
         let rows = ROWS.min(n - y0);

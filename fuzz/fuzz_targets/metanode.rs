@@ -8,7 +8,7 @@ mod common;
 
 fuzz_target!(|data: &[u8]| {
     let (_dir, path) = common::input_file("in.rmn", &common::with_header_checksum(data));
-    if let Ok(f) = relief::vdtree::metanode::MetaNodeFile::open(&path) {
+    if let Ok(f) = relief::metanode::blocking::MetaNodeFile::open(&path) {
         let _ = (f.base_triangles().len(), f.tree_bytes());
         let mut buf = Vec::new();
         for m in 0..f.mnt().len().min(1 << 12) as u32 {
@@ -16,14 +16,14 @@ fuzz_target!(|data: &[u8]| {
             // Both ways navigation reads a block: pread (Ext) and the map (Virt).
             if f.read_block(m, &mut buf).is_ok() {
                 let bytes: &[u8] = words_as_bytes(&buf);
-                walk(relief::vdtree::navigate::parse_block(&f, m, bytes));
+                walk(relief::metanode::navigate::parse_block(&f, m, bytes));
             }
-            walk(relief::vdtree::navigate::parse_block(&f, m, f.mapped_block(m)));
+            walk(relief::metanode::navigate::parse_block(&f, m, f.mapped_block(m)));
         }
     }
 });
 
-fn walk(view: relief::Result<relief::vdtree::metanode::BlockView<'_>>) {
+fn walk(view: relief::Result<relief::metanode::blocking::BlockView<'_>>) {
     if let Ok(v) = view {
         for node in v.nodes {
             let _ = (v.position(node), v.triangles_of(node).len());

@@ -8,8 +8,8 @@ use std::sync::Arc;
 
 use glam::DVec3;
 use libfuzzer_sys::fuzz_target;
-use relief::vdtree::metanode::MetaNodeFile;
-use relief::vdtree::navigate::{ExtStore, MetaStore, NavOptions, Navigator, VirtStore};
+use relief::metanode::blocking::MetaNodeFile;
+use relief::metanode::navigate::{ExtStore, MetaStore, NavOptions, Navigator, VirtStore};
 
 #[path = "common.rs"]
 mod common;

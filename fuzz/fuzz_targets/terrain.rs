@@ -10,9 +10,9 @@ mod common;
 
 fuzz_target!(|data: &[u8]| {
     let (_dir, path) = common::input_file("in.relief", &common::with_header_checksum(data));
-    let Ok(file) = relief::format::TerrainFile::open(&path) else { return };
-    let _ = relief::inspect::verify(&file, relief::progress::Progress::hidden());
-    let _ = relief::inspect::info(&file);
+    let Ok(file) = relief::format::terrain::TerrainFile::open(&path) else { return };
+    let _ = relief::preprocess::inspect::verify(&file, relief::sys::progress::Progress::hidden());
+    let _ = relief::preprocess::inspect::info(&file);
     let options = relief::flight::OrbitOptions { frames: 2, radius_m: None, altitude_m: None };
     let Ok(orbit) = relief::flight::orbit(&file, &options) else { return };
     let Ok(camera) = orbit.camera(0, 60.0, 320, 200) else { return };

@@ -7,9 +7,9 @@
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::format::TerrainFile;
+use crate::format::terrain::TerrainFile;
 use crate::layout::{Layout, LayoutVisitor};
-use crate::progress::Progress;
+use crate::sys::progress::Progress;
 
 /// How the grid's posts are spread over the layers of a texture array: post `(x, y)` lives in
 /// layer `(y / tile) · tiles_per_row + x / tile` at texel `(x mod tile, y mod tile)`.

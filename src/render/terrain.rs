@@ -10,8 +10,7 @@ use glam::DVec3;
 
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::format::TerrainFile;
-use crate::progress::Progress;
+use crate::format::terrain::TerrainFile;
 use crate::refine::{Morph, Strip, StripVertex};
 use crate::render::gpu::Gpu;
 use crate::render::heights::{GpuHeights, HeightTiling};
@@ -19,6 +18,7 @@ use crate::render::offscreen::{depth_clear, frame_pass};
 use crate::render::pipeline::{build_pipeline, depth_state, uniform_entry, PipelineSpec};
 use crate::render::shade::ShadeParams;
 use crate::render::vertex_buffer::VertexBuffer;
+use crate::sys::progress::Progress;
 
 /// WGSL source of the terrain shaders.
 pub const TERRAIN_WGSL: &str = include_str!("../../shaders/terrain.wgsl");

@@ -12,12 +12,12 @@ use super::{FlyCamera, Scene, WindowSettings};
 use crate::camera::{Camera, UpAxis};
 use crate::error::Result;
 use crate::fly::{RefineJob, StripSource, Update};
-use crate::format::TerrainFile;
-use crate::mem;
-use crate::progress::Progress;
+use crate::format::terrain::TerrainFile;
 use crate::refine::RefineOptions;
 use crate::render::terrain::FRAME_UNIFORM_BYTES;
 use crate::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
+use crate::sys::mem;
+use crate::sys::progress::Progress;
 
 /// Settings of an interactive flight over a terrain.
 #[derive(Clone, Debug)]

@@ -6,12 +6,12 @@ use std::path::Path;
 
 use glam::DVec3;
 use relief::camera::Camera;
-use relief::convert::{convert, ConvertOptions};
-use relief::format::TerrainFile;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
-use relief::metric::MetricKind;
+use relief::preprocess::convert::{convert, ConvertOptions};
+use relief::refine::metric::MetricKind;
+use relief::refine::report::{refine_report, ReportOptions};
 use relief::refine::{mesh_triangles, RefineOptions, Refiner, Strip, StripVertex};
-use relief::refine_report::{refine_report, ReportOptions};
 
 /// SplitMix64: a small deterministic generator, so failures replay.
 pub struct Rng(pub u64);
@@ -88,7 +88,7 @@ pub fn check(
     camera: &Camera,
     options: &RefineOptions,
     strip: &Strip,
-) -> relief::mesh_check::MeshCheck {
+) -> relief::refine::check::MeshCheck {
     let report = ReportOptions { threads: 1, repeat: 1, check: true, compare_minimal: false };
     let (r, s) = refine_report(terrain, camera, options, &report).unwrap();
     assert_eq!(&s.vertices, &strip.vertices, "report refines the same strip");

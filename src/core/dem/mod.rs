@@ -1,0 +1,252 @@
+//! DEM readers: every supported input format streams its samples into a sink, row runs at a time,
+//! so conversion never needs the whole image in anonymous memory.
+//!
+//! Formats are chosen by content (magic bytes) and extension, or forced with [`DemFormat`].
+//! Readers report samples in the file's own vertical unit (Terrain-RGB and Terrarium decode to
+//! metres as their encodings define); nodata, void and non-finite samples arrive as `NaN` and are
+//! filled later by [`crate::preprocess::fill`].
+
+mod asc;
+mod exr;
+mod geotiff;
+mod hgt;
+mod png;
+
+use std::fs::File;
+use std::io::Read;
+use std::path::Path;
+
+use crate::error::{Error, IoContext, Result};
+
+/// Input formats. The names are those of `--format`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum DemFormat {
+    /// GeoTIFF / TIFF: 8/16/32/64-bit integers, f16/f32/f64; strips or tiles; uncompressed,
+    /// deflate, LZW, PackBits (whatever the `tiff` crate decodes).
+    GeoTiff,
+    /// Grayscale PNG, 8 or 16 bits: the sample value is the height.
+    Png,
+    /// Mapbox Terrain-RGB PNG: h = (R·65536 + G·256 + B) · 0.1 − 10000 metres.
+    TerrainRgb,
+    /// Terrarium PNG: h = R·256 + G + B/256 − 32768 metres.
+    Terrarium,
+    /// Single-channel OpenEXR, f16 or f32 (or u32).
+    Exr,
+    /// SRTM `.hgt`: square, big-endian i16, void −32768, 1201² (3″) or 3601² (1″).
+    Hgt,
+    /// ESRI ASCII grid (`.asc`).
+    Asc,
+}
+
+impl DemFormat {
+    pub const ALL: [DemFormat; 7] = [
+        DemFormat::GeoTiff,
+        DemFormat::Png,
+        DemFormat::TerrainRgb,
+        DemFormat::Terrarium,
+        DemFormat::Exr,
+        DemFormat::Hgt,
+        DemFormat::Asc,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            DemFormat::GeoTiff => "geotiff",
+            DemFormat::Png => "png",
+            DemFormat::TerrainRgb => "terrain-rgb",
+            DemFormat::Terrarium => "terrarium",
+            DemFormat::Exr => "exr",
+            DemFormat::Hgt => "hgt",
+            DemFormat::Asc => "asc",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<DemFormat> {
+        DemFormat::ALL.into_iter().find(|f| f.name() == name)
+    }
+}
+
+impl std::fmt::Display for DemFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Post spacing as the file states it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SourceSpacing {
+    /// Projected grid, posts `x` (east) and `y` (north) metres apart.
+    Metres { x: f64, y: f64 },
+    /// Geographic grid, posts `x` (longitude) and `y` (latitude) degrees apart; `centre_lat_deg`
+    /// is the latitude of the grid's centre, where degrees are converted to metres.
+    Degrees { x: f64, y: f64, centre_lat_deg: f64 },
+}
+
+/// What a reader learned from the file's header.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DemInfo {
+    pub format: DemFormat,
+    /// Samples per row.
+    pub width: u32,
+    /// Rows (row 0 is the northernmost).
+    pub height: u32,
+    /// Post spacing, if the file says.
+    pub spacing: Option<SourceSpacing>,
+    /// The nodata value the file declares, if any (samples equal to it arrive as NaN).
+    pub nodata: Option<f64>,
+    /// Sample type as stored, e.g. "int16", "float32", "uint8 rgb".
+    pub sample_type: String,
+}
+
+/// A run of consecutive samples on one row: `values[k]` is the sample at column `x0 + k` of row
+/// `row` (row 0 = north). NaN marks nodata.
+pub struct Run<'a> {
+    pub row: u32,
+    pub x0: u32,
+    pub values: &'a [f64],
+}
+
+/// A DEM opened for streaming.
+pub trait DemSource {
+    fn info(&self) -> &DemInfo;
+
+    /// Streams every sample exactly once, in runs, in any order. Stops at the first error the
+    /// sink returns (used for cancellation) and passes it on.
+    fn read(&mut self, sink: &mut dyn FnMut(Run<'_>) -> Result<()>) -> Result<()>;
+}
+
+/// Opens `path` as a DEM: `format` forces a reader; otherwise the format is detected from the
+/// content (magic bytes, PNG colour type and a sample of its pixels) and the extension; see
+/// [`detect`].
+///
+/// A forced format whose reader cannot make sense of the content fails with an error naming the
+/// file (e.g. forcing `terrain-rgb` on a grayscale PNG).
+pub fn open(path: &Path, format: Option<DemFormat>) -> Result<Box<dyn DemSource>> {
+    let format = match format {
+        Some(f) => f,
+        None => detect(path)?,
+    };
+    match format {
+        DemFormat::GeoTiff => geotiff::open(path),
+        DemFormat::Png | DemFormat::TerrainRgb | DemFormat::Terrarium => png::open(path, format),
+        DemFormat::Exr => exr::open(path),
+        DemFormat::Hgt => hgt::open(path),
+        DemFormat::Asc => asc::open(path),
+    }
+}
+
+/// Detects the format of `path` from its content and name.
+///
+/// Rules, in order:
+/// - TIFF (`II*\0`, `MM\0*`) and BigTIFF (`II+\0`, `MM\0+`) → [`DemFormat::GeoTiff`];
+/// - PNG signature → grayscale (with or without alpha) is [`DemFormat::Png`]; colour PNGs are
+///   height encodings: a file name containing `terrarium` means [`DemFormat::Terrarium`], one
+///   containing `terrain-rgb`, `terrain_rgb`, `terrainrgb` or `mapbox` means
+///   [`DemFormat::TerrainRgb`]; otherwise the median red value of the opaque pixels of the first
+///   64 rows decides: Terrain-RGB keeps R ≤ 4 for every height between −10 km and +10 km while
+///   Terrarium keeps R within 88..167, so a median below 32 means Terrain-RGB, else Terrarium;
+/// - OpenEXR magic `76 2f 31 01` → [`DemFormat::Exr`];
+/// - text whose first token is `ncols` (any case) → [`DemFormat::Asc`];
+/// - extension `.hgt` (any case), or a size of exactly 2·1201² or 2·3601² bytes →
+///   [`DemFormat::Hgt`].
+///
+/// Anything else is [`Error::UnknownFormat`], with the first bytes and the extension as a hint.
+pub fn detect(path: &Path) -> Result<DemFormat> {
+    let mut file = File::open(path).at(path)?;
+    let size = file.metadata().at(path)?.len();
+    let mut head = Vec::with_capacity(512);
+    (&mut file).take(512).read_to_end(&mut head).at(path)?;
+    drop(file);
+
+    let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+
+    if head.starts_with(b"II*\0")
+        || head.starts_with(b"MM\0*")
+        || head.starts_with(b"II+\0")
+        || head.starts_with(b"MM\0+")
+    {
+        return Ok(DemFormat::GeoTiff);
+    }
+    if head.starts_with(png::SIGNATURE) {
+        return png::detect_kind(path);
+    }
+    if head.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+        return Ok(DemFormat::Exr);
+    }
+    if asc::looks_like_asc(&head) {
+        return Ok(DemFormat::Asc);
+    }
+    if extension.as_deref() == Some("hgt") || hgt::is_standard_size(size) {
+        return Ok(DemFormat::Hgt);
+    }
+
+    let hint = if head.is_empty() {
+        "empty file".to_string()
+    } else {
+        let bytes: Vec<String> = head.iter().take(4).map(|b| format!("{b:02x}")).collect();
+        let ext = match &extension {
+            Some(e) => format!("extension .{e}"),
+            None => "no extension".to_string(),
+        };
+        format!("first bytes {}, {ext}", bytes.join(" "))
+    };
+    Err(Error::UnknownFormat { path: path.to_path_buf(), hint })
+}
+
+/// The most samples a DEM may have (2^40): more is certainly a corrupt header, and would overflow
+/// later arithmetic.
+pub const MAX_SAMPLES: u64 = 1 << 40;
+
+/// Longest run a reader emits at once; long rows are cut into several runs so that buffers stay
+/// small whatever width a (possibly hostile) header claims.
+const MAX_RUN: usize = 1 << 14;
+
+/// Checks header dimensions: both non-zero, each fitting in `u32`, the product at most
+/// [`MAX_SAMPLES`].
+fn check_dimensions(path: &Path, width: u64, height: u64) -> Result<(u32, u32)> {
+    if width == 0 || height == 0 {
+        return Err(Error::bad_dem(path, format!("empty grid ({width} x {height})")));
+    }
+    let w = u32::try_from(width);
+    let h = u32::try_from(height);
+    match (w, h, width.checked_mul(height)) {
+        (Ok(w), Ok(h), Some(n)) if n <= MAX_SAMPLES => Ok((w, h)),
+        _ => Err(Error::bad_dem(path, format!("absurd dimensions {width} x {height} (more than 2^40 samples)"))),
+    }
+}
+
+/// Collects converted samples and hands them to the sink in runs of at most [`MAX_RUN`].
+struct RunBuffer {
+    values: Vec<f64>,
+}
+
+impl RunBuffer {
+    fn new() -> Self {
+        RunBuffer { values: Vec::new() }
+    }
+
+    /// Emits `samples` as consecutive values of row `row` starting at column `x0`.
+    fn emit(
+        &mut self,
+        row: u32,
+        x0: u32,
+        samples: impl Iterator<Item = f64>,
+        sink: &mut dyn FnMut(Run<'_>) -> Result<()>,
+    ) -> Result<()> {
+        let mut x = x0;
+        self.values.clear();
+        for v in samples {
+            self.values.push(v);
+            if self.values.len() == MAX_RUN {
+                sink(Run { row, x0: x, values: &self.values })?;
+                x = x.saturating_add(MAX_RUN as u32);
+                self.values.clear();
+            }
+        }
+        if !self.values.is_empty() {
+            sink(Run { row, x0: x, values: &self.values })?;
+            self.values.clear();
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,4 @@
+//! relief's file formats.
+
+pub mod terrain;
+pub mod vdt;

@@ -1,0 +1,182 @@
+//! The per-frame fetch of the disk-page backend (Sajadi et al. 2009, §5) as a
+//! [`MeshFrameSource`]: frustum-cull the disk-page k-d tree, collect the page numbers of the
+//! surviving leaves (de-duplicated), cull each page by its box and its normal cone, sort, read
+//! the pages whole and in order, and draw every triangle in them. There is no cache of our own:
+//! like the paper, the OS page cache is the only one, and each frame reads all its pages again.
+//!
+//! Reads are `pread`s of whole pages; a run of consecutive page numbers is one `pread`. Bytes
+//! read are pages × page size. The seek distance of a frame is Σ |p_i − p_{i−1}| over its pages
+//! in read order, in pages, where p_0 is the last page the previous frame read (the "head" stays
+//! where the last read left it; page 0 before the first frame), so jumping back to the start of
+//! the next frame's range is counted too. Consecutive pages cost 1 each.
+
+use std::time::Instant;
+
+use super::file::PageFile;
+use super::kdtree::{back_facing, box_in_frustum, query_frustum};
+use crate::camera::Camera;
+use crate::error::Result;
+use crate::flight::frame::{MeshFrameSource, MeshFrameStats, PageFetchFigures};
+use crate::mesh::Bounds;
+
+/// How the fetch culls.
+#[derive(Clone, Copy, Debug)]
+pub struct FetchOptions {
+    /// Skip pages whose normal cone faces away from the eye. The mesh renderer shades back faces
+    /// (scans have holes), so turning this on can open holes where a back face was visible.
+    pub backface_cull: bool,
+    /// Evict the file from the OS page cache before every frame, so every page a frame reads
+    /// comes from storage: the fetch with no cache at all (a measurement mode; the paper leaves
+    /// caching to the OS, which this switches off).
+    pub evict_each_frame: bool,
+}
+
+impl Default for FetchOptions {
+    fn default() -> Self {
+        FetchOptions { backface_cull: true, evict_each_frame: false }
+    }
+}
+
+/// A page file flown frame by frame.
+pub struct PageSource {
+    file: PageFile,
+    options: FetchOptions,
+    triangles: Vec<[f32; 3]>,
+    /// This frame's pages (ascending) and the scratch the next frame's are built in.
+    pages: Vec<u32>,
+    next_pages: Vec<u32>,
+    candidates: Vec<u32>,
+    stack: Vec<u32>,
+    buf: Vec<u8>,
+    head_page: u64,
+    last: Option<PageFetchFigures>,
+}
+
+impl PageSource {
+    pub fn new(file: PageFile, options: FetchOptions) -> PageSource {
+        PageSource {
+            file,
+            options,
+            triangles: Vec::new(),
+            pages: Vec::new(),
+            next_pages: Vec::new(),
+            candidates: Vec::new(),
+            stack: Vec::new(),
+            buf: Vec::new(),
+            head_page: 0,
+            last: None,
+        }
+    }
+
+    pub fn file(&self) -> &PageFile {
+        &self.file
+    }
+
+    /// The pages the last update read, ascending.
+    pub fn pages(&self) -> &[u32] {
+        &self.pages
+    }
+
+    /// The pages a view needs, ascending, into `out`: the k-d query, then each page's box and
+    /// (when on) normal cone.
+    fn select(&mut self, camera: &Camera) {
+        let eye = camera.eye_in_world;
+        let planes = camera.frustum_normals();
+        query_frustum(self.file.kd_nodes(), self.file.kd_refs(), eye, &planes, &mut self.candidates, &mut self.stack);
+        let dir = self.file.directory();
+        self.next_pages.clear();
+        self.next_pages.extend(self.candidates.iter().copied().filter(|&p| {
+            let e = &dir[p as usize];
+            box_in_frustum(e.box_min, e.box_max, eye, &planes) && !(self.options.backface_cull && back_facing(e, eye))
+        }));
+    }
+}
+
+impl MeshFrameSource for PageSource {
+    fn update(&mut self, camera: &Camera, _tolerance_px: f64) -> Result<MeshFrameStats> {
+        if self.options.evict_each_frame {
+            self.file.evict_from_page_cache()?;
+        }
+        let started = Instant::now();
+        self.select(camera);
+        let page_bytes = self.file.page_bytes();
+        self.triangles.clear();
+        let mut read_s = 0.0;
+        let mut seek = 0u64;
+        let mut head = self.head_page;
+        let pages = &self.next_pages;
+        let mut i = 0;
+        while i < pages.len() {
+            let mut j = i;
+            while j + 1 < pages.len() && pages[j + 1] == pages[j] + 1 {
+                j += 1;
+            }
+            let t = Instant::now();
+            self.file.read_pages(pages[i], (j - i + 1) as u32, &mut self.buf)?;
+            read_s += t.elapsed().as_secs_f64();
+            for (k, &p) in pages[i..=j].iter().enumerate() {
+                seek += (p as u64).abs_diff(head);
+                head = p as u64;
+                let view = self.file.decode(p, &self.buf[k * page_bytes..(k + 1) * page_bytes])?;
+                view.append_triangles(&mut self.triangles);
+            }
+            i = j + 1;
+        }
+        self.head_page = head;
+        // Pages gained and lost (both lists ascending): the loop re-uploads when either is > 0.
+        let (mut gained, mut lost) = (0u64, 0u64);
+        let (old, new) = (&self.pages, &self.next_pages);
+        let (mut a, mut b) = (0, 0);
+        while a < old.len() || b < new.len() {
+            match (old.get(a), new.get(b)) {
+                (Some(x), Some(y)) if x == y => {
+                    a += 1;
+                    b += 1;
+                }
+                (Some(x), Some(y)) if x < y => {
+                    lost += 1;
+                    a += 1;
+                }
+                (Some(_), None) => {
+                    lost += 1;
+                    a += 1;
+                }
+                _ => {
+                    gained += 1;
+                    b += 1;
+                }
+            }
+        }
+        std::mem::swap(&mut self.pages, &mut self.next_pages);
+        let fetch_ms = started.elapsed().as_secs_f64() * 1e3;
+        let n = self.pages.len() as u64;
+        self.last = Some(PageFetchFigures {
+            pages_requested: n,
+            pages_candidate: self.candidates.len() as u64,
+            bytes_read: n * page_bytes as u64,
+            seek_pages: seek,
+            fetch_ms,
+            read_ms: read_s * 1e3,
+        });
+        Ok(MeshFrameStats {
+            splits: gained,
+            collapses: lost,
+            triangles: self.triangles.len() as u64 / 3,
+            pages_read: n,
+            adapt_ms: fetch_ms,
+            ..MeshFrameStats::default()
+        })
+    }
+
+    fn triangles(&self) -> &[[f32; 3]] {
+        &self.triangles
+    }
+
+    fn bounds(&self) -> Bounds {
+        self.file.header().bounds
+    }
+
+    fn page_fetch(&self) -> Option<PageFetchFigures> {
+        self.last
+    }
+}

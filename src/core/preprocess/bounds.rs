@@ -1,0 +1,354 @@
+//! Nested object-space errors and bounding-sphere radii, bottom-up (Lindstrom & Pascucci 2001, §4).
+//!
+//! For vertex i the raw error δ_i is the vertical distance between its height and the mean height of
+//! the edge it bisects. Nesting makes the active test monotone (a parent is active whenever a child
+//! is), so top-down refinement never cracks:
+//!   δ_i ← max(δ_i, δ_j) and r_i ← max(‖p_i − p_j‖ + r_j) over the DAG children j (r = 0 at level 1).
+//! Corners and the centre are always active: their error is +∞.
+//!
+//! The computation runs level by level over a row-major grid of [`Record`]s (a mapped scratch file
+//! during conversion), rows of one level in parallel. Values are computed in f64 and stored in f32
+//! rounded *up*, so the stored nesting inequalities hold exactly when re-evaluated the same way
+//! ([`nesting_violation`], used by `verify`).
+
+use rayon::prelude::*;
+
+use crate::error::Result;
+use crate::format::terrain::Record;
+use crate::layout::hierarchy::{Grid, VertexKind};
+
+/// Rounds to the nearest f32 that is not below `v` (so stored bounds stay conservative).
+#[inline]
+pub fn f32_up(v: f64) -> f32 {
+    let f = v as f32;
+    if (f as f64) < v {
+        f.next_up()
+    } else {
+        f
+    }
+}
+
+/// Euclidean distance in metres between two grid posts with heights.
+#[inline(always)]
+pub fn distance_m(spacing_m: [f64; 2], a: (u32, u32, f32), b: (u32, u32, f32)) -> f64 {
+    let dx = (a.0 as f64 - b.0 as f64) * spacing_m[0];
+    let dy = (a.1 as f64 - b.1 as f64) * spacing_m[1];
+    let dz = a.2 as f64 - b.2 as f64;
+    (dx * dx + dy * dy + dz * dz).sqrt()
+}
+
+/// Raw vertical error of `(x, y)` against the midpoint of the edge it bisects.
+#[inline(always)]
+pub fn raw_error(z: f32, za: f32, zb: f32) -> f64 {
+    (z as f64 - 0.5 * (za as f64 + zb as f64)).abs()
+}
+
+/// Row-major heights and bounds (error, radius) shared across threads during one level.
+///
+/// Within a level every vertex is written by exactly one task (tasks own whole rows), and the
+/// bounds read are those of finer levels (children, finished); heights are only read. That is what
+/// makes the raw accesses sound.
+struct SharedRows {
+    z: *const f32,
+    bounds: *mut [f32; 2],
+    side: usize,
+}
+unsafe impl Send for SharedRows {}
+unsafe impl Sync for SharedRows {}
+
+impl SharedRows {
+    #[inline(always)]
+    fn get(&self, x: u32, y: u32) -> Record {
+        let i = y as usize * self.side + x as usize;
+        // SAFETY: in bounds (callers pass grid positions); see the type's note on aliasing.
+        let (z, [error, radius]) = unsafe { (self.z.add(i).read(), self.bounds.add(i).read()) };
+        Record { z, error, radius }
+    }
+    #[inline(always)]
+    fn set_bounds(&self, x: u32, y: u32, error: f32, radius: f32) {
+        // SAFETY: as above.
+        unsafe { self.bounds.add(y as usize * self.side + x as usize).write([error, radius]) }
+    }
+}
+
+/// The nested error and radius of `(x, y)` from its own raw error and its children's records
+/// (general form, any vertex; the reference that the specialised level loops must match).
+#[cfg(test)]
+fn nested(grid: Grid, spacing_m: [f64; 2], get: impl Fn(u32, u32) -> Record, x: u32, y: u32) -> (f64, f64) {
+    let me = get(x, y);
+    let (mut err, mut rad) = match grid.split_edge(x, y) {
+        Some([a, b]) => (raw_error(me.z, get(a.0, a.1).z, get(b.0, b.1).z), 0.0f64),
+        None => (f64::INFINITY, 0.0),
+    };
+    let (children, count) = grid.dag_children(x, y);
+    for &(cx, cy) in &children[..count] {
+        let c = get(cx, cy);
+        err = err.max(c.error as f64);
+        rad = rad.max(distance_m(spacing_m, (x, y, me.z), (cx, cy, c.z)) + c.radius as f64);
+    }
+    (err, rad)
+}
+
+/// Folds child `(cx, cy)` into the running error and radius of `(x, y, z)`.
+#[inline(always)]
+fn fold_child(spacing_m: [f64; 2], rows: &SharedRows, me: (u32, u32, f32), (cx, cy): (u32, u32), acc: &mut (f64, f64)) {
+    let c = rows.get(cx, cy);
+    acc.0 = acc.0.max(c.error as f64);
+    acc.1 = acc.1.max(distance_m(spacing_m, me, (cx, cy, c.z)) + c.radius as f64);
+}
+
+/// One row of one level: the vertices, their split edges and their children are known from the
+/// level alone, so this avoids the general classification of [`nested`] (same arithmetic, same
+/// results; a test compares the two).
+#[inline(always)]
+fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: u32) -> u64 {
+    let m = grid.max_coord();
+    let odd = level % 2 == 1;
+    let step = 1u32 << ((level - 1) / 2);
+    let half = step / 2; // children of an edge midpoint are half a step away diagonally
+    let mut count = 0u64;
+    let mut finish = |x: u32, acc: (f64, f64)| {
+        let err = if (x, y) == grid.centre() { f64::INFINITY } else { acc.0 };
+        rows.set_bounds(x, y, f32_up(err), f32_up(acc.1));
+        count += 1;
+    };
+    if odd && (y / step).is_multiple_of(2) {
+        // Midpoints of horizontal edges: x = step, 3·step, …
+        let mut x = step;
+        while x < m {
+            let z = rows.get(x, y).z;
+            let mut acc = (raw_error(z, rows.get(x - step, y).z, rows.get(x + step, y).z), 0.0);
+            if half > 0 {
+                if y < m {
+                    fold_child(spacing_m, rows, (x, y, z), (x + half, y + half), &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x - half, y + half), &mut acc);
+                }
+                if y > 0 {
+                    fold_child(spacing_m, rows, (x, y, z), (x - half, y - half), &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x + half, y - half), &mut acc);
+                }
+            }
+            finish(x, acc);
+            x += 2 * step;
+        }
+    } else if odd {
+        // Midpoints of vertical edges: x = 0, 2·step, …, 2^n.
+        let mut x = 0;
+        while x <= m {
+            let z = rows.get(x, y).z;
+            let mut acc = (raw_error(z, rows.get(x, y - step).z, rows.get(x, y + step).z), 0.0);
+            if half > 0 {
+                if x < m {
+                    fold_child(spacing_m, rows, (x, y, z), (x + half, y + half), &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x + half, y - half), &mut acc);
+                }
+                if x > 0 {
+                    fold_child(spacing_m, rows, (x, y, z), (x - half, y + half), &mut acc);
+                    fold_child(spacing_m, rows, (x, y, z), (x - half, y - half), &mut acc);
+                }
+            }
+            finish(x, acc);
+            x += 2 * step;
+        }
+    } else {
+        // Square centres: x = step, 3·step, …; they bisect the diagonal joining the corner whose
+        // coordinates are even multiples of 2·step with the one whose are odd multiples.
+        let mut x = step;
+        while x < m {
+            let z = rows.get(x, y).z;
+            let rising = (((x - step) / (2 * step)) + ((y - step) / (2 * step))).is_multiple_of(2);
+            let (za, zb) = if rising {
+                (rows.get(x - step, y - step).z, rows.get(x + step, y + step).z)
+            } else {
+                (rows.get(x - step, y + step).z, rows.get(x + step, y - step).z)
+            };
+            let mut acc = (raw_error(z, za, zb), 0.0);
+            fold_child(spacing_m, rows, (x, y, z), (x + step, y), &mut acc);
+            fold_child(spacing_m, rows, (x, y, z), (x, y + step), &mut acc);
+            fold_child(spacing_m, rows, (x, y, z), (x - step, y), &mut acc);
+            fold_child(spacing_m, rows, (x, y, z), (x, y - step), &mut acc);
+            finish(x, acc);
+            x += 2 * step;
+        }
+    }
+    count
+}
+
+/// Computes error and radius (`bounds[i] = [error, radius]`) for every vertex of a row-major
+/// `grid` from its heights `z`. Heights and bounds live in separate arrays so that, during
+/// conversion, the mapped height pages are written once and only read afterwards.
+/// `progress` is called with the number of vertices finished after each row.
+pub fn compute_bounds(
+    grid: Grid,
+    spacing_m: [f64; 2],
+    z: &[f32],
+    bounds: &mut [[f32; 2]],
+    progress: &(dyn Fn(u64) + Sync),
+    check_cancel: &(dyn Fn() -> Result<()> + Sync),
+) -> Result<()> {
+    let side = grid.size();
+    assert!(z.len() as u64 == grid.vertices() && bounds.len() == z.len(), "row-major grid expected");
+    let shared = SharedRows { z: z.as_ptr(), bounds: bounds.as_mut_ptr(), side: side as usize };
+    for level in 1..=grid.levels() {
+        let step = 1u32 << ((level - 1) / 2);
+        // Edge midpoints lie on every row that is a multiple of step; square centres on odd
+        // multiples.
+        let (first, stride) = if level % 2 == 1 { (0, step) } else { (step, 2 * step) };
+        let rows: Vec<u32> = (first..side).step_by(stride as usize).collect();
+        rows.par_iter().try_for_each(|&y| -> Result<()> {
+            check_cancel()?;
+            progress(level_row(grid, spacing_m, &shared, level, y));
+            Ok(())
+        })?;
+    }
+    for (x, y) in grid.corners() {
+        shared.set_bounds(x, y, f32::INFINITY, 0.0);
+    }
+    Ok(())
+}
+
+/// Checks the stored bounds of `(x, y)` against its raw error and its children, recomputed exactly
+/// as [`compute_bounds`] does. Returns a description of the first violated inequality.
+pub fn nesting_violation(
+    grid: Grid,
+    spacing_m: [f64; 2],
+    get: impl Fn(u32, u32) -> Record,
+    x: u32,
+    y: u32,
+) -> Option<String> {
+    let me = get(x, y);
+    if !me.z.is_finite() {
+        return Some(format!("({x}, {y}): height {} is not finite", me.z));
+    }
+    let always_active = grid.kind(x, y) == VertexKind::Corner || (x, y) == grid.centre();
+    if always_active && me.error != f32::INFINITY {
+        return Some(format!("({x}, {y}): corner/centre error {} is not +inf", me.error));
+    }
+    if me.radius.is_nan() || me.radius < 0.0 || me.error.is_nan() {
+        return Some(format!("({x}, {y}): error {} / radius {} invalid", me.error, me.radius));
+    }
+    if let Some([a, b]) = grid.split_edge(x, y) {
+        let raw = raw_error(me.z, get(a.0, a.1).z, get(b.0, b.1).z);
+        if (me.error as f64) < raw {
+            return Some(format!("({x}, {y}): error {} below its raw error {raw}", me.error));
+        }
+    }
+    let (children, count) = grid.dag_children(x, y);
+    for &(cx, cy) in &children[..count] {
+        let c = get(cx, cy);
+        if me.error < c.error {
+            return Some(format!("({x}, {y}): error {} below child ({cx}, {cy})'s {}", me.error, c.error));
+        }
+        let need = distance_m(spacing_m, (x, y, me.z), (cx, cy, c.z)) + c.radius as f64;
+        if (me.radius as f64) < need {
+            return Some(format!(
+                "({x}, {y}): radius {} does not contain child ({cx}, {cy})'s sphere ({need})",
+                me.radius
+            ));
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid_with(n: u32, f: impl Fn(u32, u32) -> f32) -> (Grid, Vec<Record>) {
+        let g = Grid::new(n).unwrap();
+        let s = g.size();
+        let recs = (0..s)
+            .flat_map(|y| (0..s).map(move |x| (x, y)))
+            .map(|(x, y)| Record { z: f(x, y), error: 0.0, radius: 0.0 })
+            .collect();
+        (g, recs)
+    }
+
+    fn run(g: Grid, spacing: [f64; 2], recs: &mut [Record]) {
+        let z: Vec<f32> = recs.iter().map(|r| r.z).collect();
+        let mut bounds = vec![[0.0f32; 2]; z.len()];
+        compute_bounds(g, spacing, &z, &mut bounds, &|_| {}, &|| Ok(())).unwrap();
+        for (r, [e, rad]) in recs.iter_mut().zip(bounds) {
+            (r.error, r.radius) = (e, rad);
+        }
+    }
+
+    #[test]
+    fn level_loops_match_the_general_definition() {
+        // Rough pseudo-random terrain with non-square posts; every stored value must equal the
+        // general recomputation from its children (bit for bit).
+        let (g, mut recs) = grid_with(6, |x, y| {
+            let h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+            (h.wrapping_mul(6364136223846793005) >> 40) as f32 / 1000.0
+        });
+        let spacing = [3.0, 7.5];
+        run(g, spacing, &mut recs);
+        let s = g.size() as usize;
+        let get = |x: u32, y: u32| recs[y as usize * s + x as usize];
+        for y in 0..g.size() {
+            for x in 0..g.size() {
+                if g.kind(x, y) == VertexKind::Corner {
+                    continue;
+                }
+                let (e, r) = nested(g, spacing, get, x, y);
+                let e = if (x, y) == g.centre() { f64::INFINITY } else { e };
+                assert_eq!((get(x, y).error, get(x, y).radius), (f32_up(e), f32_up(r)), "({x},{y})");
+                assert_eq!(nesting_violation(g, spacing, get, x, y), None);
+            }
+        }
+    }
+
+    #[test]
+    fn planar_terrain_has_zero_error_but_positive_radii() {
+        let (g, mut recs) = grid_with(4, |x, y| 3.0 * x as f32 - 2.0 * y as f32);
+        run(g, [1.0, 1.0], &mut recs);
+        let s = g.size() as usize;
+        for y in 0..g.size() {
+            for x in 0..g.size() {
+                let r = recs[y as usize * s + x as usize];
+                let special = g.kind(x, y) == VertexKind::Corner || (x, y) == g.centre();
+                if special {
+                    assert_eq!(r.error, f32::INFINITY);
+                } else {
+                    assert_eq!(r.error, 0.0, "plane at ({x},{y})");
+                }
+                if g.level(x, y) == 1 || g.kind(x, y) == VertexKind::Corner {
+                    assert_eq!(r.radius, 0.0);
+                } else {
+                    assert!(r.radius > 0.0);
+                }
+                assert_eq!(nesting_violation(g, [1.0, 1.0], |a, b| recs[b as usize * s + a as usize], x, y), None);
+            }
+        }
+    }
+
+    #[test]
+    fn spike_error_propagates_to_every_ancestor() {
+        // A 10 m spike at a finest-level vertex: its raw error is 10, and every DAG ancestor's
+        // nested error must be at least 10.
+        let (g, mut recs) = grid_with(3, |x, y| if (x, y) == (3, 2) { 10.0 } else { 0.0 });
+        run(g, [2.0, 2.0], &mut recs);
+        let s = g.size() as usize;
+        let at = |x: u32, y: u32| recs[y as usize * s + x as usize];
+        assert_eq!(g.level(3, 2), 1);
+        assert_eq!(at(3, 2).error, 10.0);
+        let mut frontier = vec![(3u32, 2u32)];
+        while let Some((x, y)) = frontier.pop() {
+            assert!(at(x, y).error >= 10.0, "ancestor ({x},{y})");
+            let (ps, np) = g.dag_parents(x, y);
+            frontier.extend_from_slice(&ps[..np]);
+        }
+        // Vertices whose descendants do not include the spike, and whose split edges do not touch
+        // it, stay exact zero.
+        assert_eq!(at(1, 0).error, 0.0);
+    }
+
+    #[test]
+    fn radius_of_level_two_vertex_is_distance_to_farthest_child() {
+        let (g, mut recs) = grid_with(2, |_, _| 0.0);
+        run(g, [3.0, 4.0], &mut recs);
+        let s = g.size() as usize;
+        // (1,1) is a square centre at step 1: children (0,1), (2,1), (1,0), (1,2) at 3 m and 4 m.
+        assert_eq!(recs[s + 1].radius, 4.0);
+    }
+}

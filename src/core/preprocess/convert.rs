@@ -1,0 +1,567 @@
+//! DEM → terrain file conversion with bounded anonymous memory.
+//!
+//! Steps: stream the DEM into a memory-mapped row-major grid of heights (file-backed scratch, so
+//! the kernel may page it out; anonymous memory stays O(row)), fill voids, pad to (2^n + 1)² by
+//! edge replication, compute nested errors and radii level by level into a second mapped grid,
+//! then write the records in the layout's order into a temporary output file with positioned
+//! writes (checksumming block by block), write the header, sync, and rename over the final name.
+//! Heights and bounds live in separate scratch grids so that each scratch page is dirtied once:
+//! re-dirtying pages the kernel has already written back doubled the I/O on large grids. An error
+//! or a Ctrl-C at any point drops the temporary files, so the final name holds either the old file
+//! or the complete new one.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use memmap2::MmapMut;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::dem::{self, DemFormat, Run, SourceSpacing};
+use crate::error::{Error, IoContext, Result};
+use crate::format::terrain::{
+    self, Header, Record, TerrainFile, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED, PAYLOAD_OFFSET, RECORD_BYTES,
+};
+use crate::layout::hierarchy::{Grid, MAX_N};
+use crate::layout::{AnyLayout, Layout, LayoutKind};
+use crate::pager::source::MAX_MAPPED_BYTES;
+use crate::preprocess;
+use crate::preprocess::fill;
+use crate::sys::cancel;
+use crate::sys::mem::AnonSampler;
+use crate::sys::progress::Progress;
+
+/// Mean Earth radius (IUGG), used to turn degrees into metres at the grid's centre latitude.
+pub const EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+/// What `relief convert` was asked to do.
+#[derive(Clone, Debug)]
+pub struct ConvertOptions {
+    pub layout: LayoutKind,
+    /// Tile side for `tiled` (power of two); `None` picks about one 4 KiB page per tile.
+    pub tile: Option<u32>,
+    /// Post spacing in metres (x, y); overrides what the file says.
+    pub spacing_m: Option<[f64; 2]>,
+    /// Heights in metres = source value × z_scale + z_offset.
+    pub z_scale: f64,
+    pub z_offset: f64,
+    pub format: Option<DemFormat>,
+    /// Where the scratch grid lives (default: beside the output).
+    pub scratch_dir: Option<PathBuf>,
+    pub progress: Progress,
+}
+
+impl ConvertOptions {
+    pub fn new(layout: LayoutKind) -> Self {
+        ConvertOptions {
+            layout,
+            tile: None,
+            spacing_m: None,
+            z_scale: 1.0,
+            z_offset: 0.0,
+            format: None,
+            scratch_dir: None,
+            progress: Progress::hidden(),
+        }
+    }
+}
+
+/// Seconds spent in each step.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StepSeconds {
+    pub read: f64,
+    pub fill: f64,
+    pub bounds: f64,
+    pub layout: f64,
+    pub write: f64,
+}
+
+/// What a conversion did, for `--json` and benchmarks.
+#[derive(Clone, Debug, Serialize)]
+pub struct ConvertReport {
+    pub input: PathBuf,
+    pub output: PathBuf,
+    pub format: String,
+    pub source_width: u32,
+    pub source_height: u32,
+    pub grid_size: u32,
+    pub layout: String,
+    pub records: u64,
+    pub vertices: u64,
+    pub spacing_m: [f64; 2],
+    pub spacing_source: &'static str,
+    pub nodata_filled: u64,
+    pub z_min: f64,
+    pub z_max: f64,
+    pub file_bytes: u64,
+    pub seconds: f64,
+    pub steps: StepSeconds,
+    pub vertices_per_s: f64,
+    pub peak_rss_anon_bytes: u64,
+}
+
+/// A failed `set_len`; EFBIG (larger than the file system's largest file) says how large.
+fn file_system_limit(e: std::io::Error, path: &Path, len: u64) -> Error {
+    if e.raw_os_error() == Some(libc::EFBIG) {
+        let problem =
+            format!("{} is more than this file system allows in one file ({e})", crate::error::tib(len as u128));
+        return Error::io(path, std::io::Error::new(e.kind(), problem));
+    }
+    Error::io(path, e)
+}
+
+/// A writable mapping of a fresh file (the scratch grids).
+struct MappedFile {
+    _file: File, // held for the mapping's lifetime
+    map: MmapMut,
+}
+
+impl MappedFile {
+    fn create(file: File, len: u64, path: &Path) -> Result<MappedFile> {
+        file.set_len(len).map_err(|e| file_system_limit(e, path, len))?;
+        // SAFETY: the file was just created by this process (a temporary or unlinked file nobody
+        // else knows of) and sized above; it is mapped once and lives as long as the map.
+        let map = unsafe { MmapMut::map_mut(&file) }.at(path)?;
+        Ok(MappedFile { _file: file, map })
+    }
+
+    /// A fresh, already unlinked scratch file of `bytes` bytes in `dir`, mapped (it vanishes with the
+    /// process, whatever the exit).
+    fn scratch(dir: &Path, bytes: u64) -> Result<MappedFile> {
+        let file = tempfile::tempfile_in(dir).at(dir)?;
+        MappedFile::create(file, bytes, dir)
+    }
+
+    fn as_mut<T: bytemuck::Pod>(&mut self) -> &mut [T] {
+        bytemuck::cast_slice_mut(&mut self.map[..])
+    }
+}
+
+/// Faults a mapped region in, chunk by chunk from its start, on a helper thread
+/// (`MADV_POPULATE_WRITE`; a no-op where the kernel lacks it). Only the page tables and page cache
+/// are touched: the data is written by the reader, concurrently, through its own slice.
+struct Prefault {
+    addr: usize,
+    len: usize,
+    stop: std::sync::atomic::AtomicBool,
+}
+
+impl Prefault {
+    fn new<T>(region: &mut [T]) -> Self {
+        Prefault { addr: region.as_mut_ptr() as usize, len: std::mem::size_of_val(region), stop: false.into() }
+    }
+
+    fn run(&self) {
+        const CHUNK: usize = 32 << 20;
+        let page = 4096;
+        let start = self.addr & !(page - 1);
+        let end = self.addr + self.len;
+        let mut at = start;
+        while at < end && !self.stop.load(std::sync::atomic::Ordering::Relaxed) {
+            let len = CHUNK.min(end - at);
+            // SAFETY: the range lies within a live shared file mapping owned by the caller for
+            // the duration of the scope; MADV_POPULATE_WRITE only pre-faults, it does not change
+            // contents.
+            let rc = unsafe { libc::madvise(at as *mut libc::c_void, len, libc::MADV_POPULATE_WRITE) };
+            if rc != 0 {
+                return;
+            }
+            at += len;
+        }
+    }
+
+    fn stop(&self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+/// Spacing in metres and how it was obtained.
+fn resolve_spacing(
+    opts: &ConvertOptions,
+    source: Option<SourceSpacing>,
+) -> ([f64; 2], &'static str, u32, f64, [f64; 2]) {
+    let nan2 = [f64::NAN, f64::NAN];
+    let (lat, deg) = match source {
+        Some(SourceSpacing::Degrees { x, y, centre_lat_deg }) => (centre_lat_deg, [x, y]),
+        _ => (f64::NAN, nan2),
+    };
+    let geo_flag = if lat.is_nan() { 0 } else { FLAG_GEOGRAPHIC };
+    if let Some(s) = opts.spacing_m {
+        return (s, "option", geo_flag, lat, deg);
+    }
+    match source {
+        Some(SourceSpacing::Metres { x, y }) => ([x.abs(), y.abs()], "file", 0, f64::NAN, nan2),
+        Some(SourceSpacing::Degrees { x, y, centre_lat_deg }) => {
+            let m_per_deg = EARTH_RADIUS_M * std::f64::consts::PI / 180.0;
+            let sx = x.abs() * m_per_deg * centre_lat_deg.to_radians().cos();
+            let sy = y.abs() * m_per_deg;
+            (
+                [sx, sy],
+                "file (degrees converted at the centre latitude)",
+                FLAG_GEOGRAPHIC,
+                centre_lat_deg,
+                [x.abs(), y.abs()],
+            )
+        }
+        None => {
+            ([1.0, 1.0], "assumed 1 m (the file does not say; pass --spacing)", FLAG_SPACING_ASSUMED, f64::NAN, nan2)
+        }
+    }
+}
+
+fn temp_in(dir: &Path, output: &Path) -> Result<tempfile::NamedTempFile> {
+    let name = output.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    tempfile::Builder::new()
+        .prefix(&format!(".{name}."))
+        .suffix(".tmp")
+        .tempfile_in(dir)
+        .map_err(|e| Error::io(output, e))
+}
+
+/// Where relief keeps terrains it converts on its own (the bundled terrain, `relief layouts`):
+/// `$XDG_CACHE_HOME/relief`, else `~/.cache/relief`, else `./target/relief`.
+pub fn cache_dir() -> PathBuf {
+    std::env::var_os("XDG_CACHE_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache")))
+        .unwrap_or_else(|| PathBuf::from("target"))
+        .join("relief")
+}
+
+/// Converts the DEM at `input` into a terrain file at `output`.
+pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<ConvertReport> {
+    convert_source(input, None, output, opts)
+}
+
+/// Writes `terrain` again in another layout (`opts.layout`): the DEM's own posts (its valid
+/// window) are read back from the file and converted as if they came from the DEM, so the result
+/// equals converting the original DEM (heights are taken as metres: `z_scale` 1, offset 0).
+pub fn relayout(terrain: &TerrainFile, output: &Path, opts: &ConvertOptions) -> Result<ConvertReport> {
+    if output == terrain.path() {
+        return Err(Error::InvalidArgument(format!("{}: re-layout output must be another file", output.display())));
+    }
+    let opts = ConvertOptions { z_scale: 1.0, z_offset: 0.0, format: None, ..opts.clone() };
+    convert_source(terrain.path(), Some(Box::new(TerrainSource::new(terrain))), output, &opts)
+}
+
+/// A terrain file's valid window streamed as a DEM (row 0 north), for [`relayout`].
+struct TerrainSource<'a> {
+    terrain: &'a TerrainFile,
+    info: dem::DemInfo,
+}
+
+impl<'a> TerrainSource<'a> {
+    fn new(terrain: &'a TerrainFile) -> Self {
+        let h = terrain.header();
+        let [x0, y0, x1, y1] = h.valid_window;
+        let info = dem::DemInfo {
+            format: DemFormat::ALL.get(h.source_format as usize).copied().unwrap_or(DemFormat::GeoTiff),
+            width: x1 - x0,
+            height: y1 - y0,
+            spacing: Some(dem::SourceSpacing::Metres { x: h.spacing_m[0], y: h.spacing_m[1] }),
+            nodata: None,
+            sample_type: "float32 (relief terrain file)".into(),
+        };
+        TerrainSource { terrain, info }
+    }
+}
+
+impl dem::DemSource for TerrainSource<'_> {
+    fn info(&self) -> &dem::DemInfo {
+        &self.info
+    }
+
+    fn read(&mut self, sink: &mut dyn FnMut(dem::Run<'_>) -> Result<()>) -> Result<()> {
+        let [x0, y0, x1, y1] = self.terrain.header().valid_window;
+        let mut row = vec![0f64; (x1 - x0) as usize];
+        for r in 0..(y1 - y0) {
+            // Grid row y counts from the south; DEM row 0 is the northernmost.
+            let y = y1 - 1 - r;
+            for (k, v) in row.iter_mut().enumerate() {
+                *v = self.terrain.record_at(x0 + k as u32, y).z as f64;
+            }
+            sink(dem::Run { row: r, x0: 0, values: &row })?;
+        }
+        Ok(())
+    }
+}
+
+fn convert_source(
+    input: &Path,
+    source: Option<Box<dyn dem::DemSource + '_>>,
+    output: &Path,
+    opts: &ConvertOptions,
+) -> Result<ConvertReport> {
+    let started = Instant::now();
+    let sampler = AnonSampler::start();
+    let mut steps = StepSeconds::default();
+
+    if opts.z_scale == 0.0 || !opts.z_scale.is_finite() || !opts.z_offset.is_finite() {
+        return Err(Error::InvalidArgument(format!(
+            "--z-scale {} / --z-offset {} must be finite, scale non-zero",
+            opts.z_scale, opts.z_offset
+        )));
+    }
+    if let Some([sx, sy]) = opts.spacing_m {
+        if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0) {
+            return Err(Error::InvalidArgument(format!("--spacing must be positive metres, got {sx},{sy}")));
+        }
+    }
+
+    let mut source = match source {
+        Some(s) => s,
+        None => dem::open(input, opts.format)?,
+    };
+    let info = source.info().clone();
+    let (width, height) = (info.width, info.height);
+    let grid = Grid::covering(width as u64, height as u64).ok_or(Error::GridTooLarge {
+        path: input.into(),
+        width: width as u64,
+        height: height as u64,
+        max_n: MAX_N,
+    })?;
+    let layout =
+        AnyLayout::new(opts.layout, grid, opts.tile.unwrap_or(0), RECORD_BYTES).map_err(Error::InvalidArgument)?;
+    let (spacing_m, spacing_source, flags, centre_lat, spacing_deg) = resolve_spacing(opts, info.spacing);
+
+    let out_dir = match output.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    if output.is_dir() {
+        return Err(Error::io(output, std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a directory")));
+    }
+    let side = grid.size() as usize;
+    let vertices = grid.vertices() as usize;
+    // Sizes in u128 (at n = 31 they overflow u64). The output is mapped whole when read, and both
+    // scratch grids are mapped whole here: refuse what cannot be mapped before creating anything.
+    let file_len = layout.records() as u128 * RECORD_BYTES as u128 + PAYLOAD_OFFSET as u128;
+    let z_len = grid.vertices() as u128 * std::mem::size_of::<f32>() as u128;
+    let bounds_len = grid.vertices() as u128 * std::mem::size_of::<[f32; 2]>() as u128;
+    for (what, bytes) in [("terrain file", file_len), ("conversion scratch", z_len + bounds_len)] {
+        if bytes > MAX_MAPPED_BYTES as u128 {
+            let side = grid.size() as u64;
+            return Err(Error::TooLargeToMap { path: input.into(), side, what, bytes, limit: MAX_MAPPED_BYTES });
+        }
+    }
+    // Each is at most MAX_MAPPED_BYTES now, so fits in u64.
+    let (file_len, z_len, bounds_len) = (file_len as u64, z_len as u64, bounds_len as u64);
+    let payload_bytes = file_len - PAYLOAD_OFFSET;
+    let out_tmp = temp_in(&out_dir, output)?;
+    // The output is written once, sequentially, with positioned writes (no page faults, no
+    // zero-filling of fresh pages); blocks of unused index slots are left as holes.
+    let out_file = out_tmp.reopen().at(output)?;
+    out_file.set_len(file_len).map_err(|e| file_system_limit(e, output, file_len))?;
+    // Scratch: heights and bounds in separate row-major grids, so each scratch page is written
+    // once (heights while reading, bounds while preprocessing) and never re-dirtied after the
+    // kernel has written it back.
+    let scratch_dir = opts.scratch_dir.clone().unwrap_or_else(|| out_dir.clone());
+    let mut z_map = MappedFile::scratch(&scratch_dir, z_len)?;
+    let mut bounds_map = MappedFile::scratch(&scratch_dir, bounds_len)?;
+    let z_grid: &mut [f32] = z_map.as_mut();
+    let bounds_grid: &mut [[f32; 2]] = bounds_map.as_mut();
+
+    // 1. Read the DEM into the row-major grid (grid row y = height − 1 − image row).
+    let t = Instant::now();
+    let bar = opts.progress.bar("read", width as u64 * height as u64, "samples");
+    let (mut nan_count, mut z_min, mut z_max) = (0u64, f64::INFINITY, f64::NEG_INFINITY);
+    {
+        let (z_scale, z_offset) = (opts.z_scale, opts.z_offset);
+        // Readers are mostly sequential; fault the grid's pages in on the other core meanwhile
+        // (the kernel zeroes each fresh page-cache page, a large share of this step's cost).
+        let prefault = Prefault::new(z_grid);
+        std::thread::scope(|scope| -> Result<()> {
+            scope.spawn(|| prefault.run());
+            let result = source.read(&mut |run: Run<'_>| {
+                cancel::check()?;
+                let end = run.x0 as u64 + run.values.len() as u64;
+                if run.row >= height || end > width as u64 {
+                    return Err(Error::bad_dem(
+                        input,
+                        format!(
+                            "reader produced samples outside {width}x{height} (row {}, columns {}..{end})",
+                            run.row, run.x0
+                        ),
+                    ));
+                }
+                let y = (height - 1 - run.row) as usize;
+                let dst = &mut z_grid[y * side + run.x0 as usize..y * side + end as usize];
+                for (r, &v) in dst.iter_mut().zip(run.values) {
+                    let z = v * z_scale + z_offset;
+                    if z.is_finite() {
+                        // The range is that of the stored (f32) heights.
+                        *r = z as f32;
+                        z_min = z_min.min(*r as f64);
+                        z_max = z_max.max(*r as f64);
+                    } else {
+                        nan_count += 1;
+                        *r = f32::NAN;
+                    }
+                }
+                bar.inc(run.values.len() as u64);
+                Ok(())
+            });
+            prefault.stop();
+            result
+        })?;
+        bar.finish_and_clear();
+        steps.read = t.elapsed().as_secs_f64();
+        if z_min > z_max {
+            return Err(Error::NoValidSamples { path: input.into() });
+        }
+
+        // 2. Fill voids and pad.
+        let t = Instant::now();
+        if nan_count > 0 {
+            let filled = fill::fill_voids(z_grid, bounds_grid, side, width as usize, height as usize);
+            debug_assert_eq!(filled, nan_count);
+            // Filled values are weighted means of valid ones, but f32 rounding can step just
+            // outside the valid range: take the range of what is stored.
+            (z_min, z_max) = fill::height_range(z_grid, side, width as usize, height as usize);
+        }
+        fill::pad(z_grid, side, width as usize, height as usize);
+        steps.fill = t.elapsed().as_secs_f64();
+        cancel::check()?;
+
+        // 3. Nested errors and radii.
+        let t = Instant::now();
+        let bar = opts.progress.bar("bounds", vertices as u64, "vertices");
+        preprocess::compute_bounds(grid, spacing_m, z_grid, bounds_grid, &|k| bar.inc(k), &cancel::check)?;
+        bar.finish_and_clear();
+        steps.bounds = t.elapsed().as_secs_f64();
+    }
+
+    // 4. Gather into the layout's order, checksumming block by block.
+    let t = Instant::now();
+    let bar = opts.progress.bar("layout", layout.records(), "records");
+    let hashes = gather(&layout, z_grid, bounds_grid, side, &out_file, output, &|k| bar.inc(k))?;
+    bar.finish_and_clear();
+    let payload_checksum = terrain::combine_block_hashes(&hashes);
+    drop((z_map, bounds_map));
+    steps.layout = t.elapsed().as_secs_f64();
+
+    // 5. Header, sync, rename.
+    let t = Instant::now();
+    let header = Header {
+        version: terrain::VERSION,
+        layout: layout.kind(),
+        layout_param: layout.param(),
+        record_format: terrain::RECORD_FORMAT_F32,
+        record_bytes: RECORD_BYTES,
+        n: grid.n(),
+        flags,
+        valid_window: [0, 0, width, height],
+        source_format: DemFormat::ALL.iter().position(|f| *f == info.format).unwrap_or(0) as u32,
+        records: layout.records(),
+        payload_offset: PAYLOAD_OFFSET,
+        payload_bytes,
+        spacing_m,
+        z_scale: opts.z_scale,
+        z_offset: opts.z_offset,
+        z_min,
+        z_max,
+        nodata_filled: nan_count,
+        source_centre_lat_deg: centre_lat,
+        source_spacing_deg: spacing_deg,
+        payload_checksum,
+    };
+    cancel::check()?;
+    {
+        use std::os::unix::fs::FileExt;
+        out_file.write_all_at(&header.encode(), 0).at(output)?;
+    }
+    out_file.sync_all().at(output)?;
+    drop(out_file);
+    out_tmp.persist(output).map_err(|e| Error::io(output, e.error))?;
+    if let Ok(dir) = File::open(&out_dir) {
+        let _ = dir.sync_all(); // make the rename durable where the platform allows
+    }
+    steps.write = t.elapsed().as_secs_f64();
+
+    let seconds = started.elapsed().as_secs_f64();
+    Ok(ConvertReport {
+        input: input.into(),
+        output: output.into(),
+        format: info.format.name().into(),
+        source_width: width,
+        source_height: height,
+        grid_size: grid.size(),
+        layout: layout.kind().name().into(),
+        records: layout.records(),
+        vertices: grid.vertices(),
+        spacing_m,
+        spacing_source,
+        nodata_filled: nan_count,
+        z_min,
+        z_max,
+        file_bytes: file_len,
+        seconds,
+        steps,
+        vertices_per_s: grid.vertices() as f64 / seconds,
+        peak_rss_anon_bytes: sampler.finish(),
+    })
+}
+
+/// Writes the payload in layout order: record `i` = the grid's `coords(i)` post, zero
+/// otherwise, in parallel blocks of [`terrain::CHECKSUM_BLOCK_BYTES`] with positioned writes.
+/// Returns the blocks' hashes in order. Blocks with no used slot are not written (holes read as
+/// zeros).
+fn gather(
+    layout: &AnyLayout,
+    z: &[f32],
+    bounds: &[[f32; 2]],
+    side: usize,
+    out: &File,
+    output: &Path,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<u64>> {
+    struct Gather<'a> {
+        z: &'a [f32],
+        bounds: &'a [[f32; 2]],
+        side: usize,
+        out: &'a File,
+        output: &'a Path,
+        progress: &'a (dyn Fn(u64) + Sync),
+    }
+    impl crate::layout::LayoutVisitor for Gather<'_> {
+        type Output = Result<Vec<u64>>;
+        fn visit<L: Layout>(self, layout: &L) -> Result<Vec<u64>> {
+            use std::os::unix::fs::FileExt;
+            let per_block = terrain::CHECKSUM_BLOCK_BYTES / RECORD_BYTES as usize;
+            let records = layout.records() as usize;
+            let (z, bounds, side) = (self.z, self.bounds, self.side);
+            (0..records.div_ceil(per_block))
+                .into_par_iter()
+                .map_init(
+                    || vec![Record::default(); per_block],
+                    |buf, b| {
+                        cancel::check()?;
+                        let first = b * per_block;
+                        let buf = &mut buf[..per_block.min(records - first)];
+                        let mut used = false;
+                        for (k, r) in buf.iter_mut().enumerate() {
+                            *r = match layout.coords((first + k) as u64) {
+                                Some((x, y)) => {
+                                    used = true;
+                                    let i = y as usize * side + x as usize;
+                                    let [error, radius] = bounds[i];
+                                    Record { z: z[i], error, radius }
+                                }
+                                None => Record::default(),
+                            };
+                        }
+                        let bytes: &[u8] = bytemuck::cast_slice(buf);
+                        if used {
+                            let at = PAYLOAD_OFFSET + (first * RECORD_BYTES as usize) as u64;
+                            self.out.write_all_at(bytes, at).at(self.output)?;
+                        }
+                        (self.progress)(buf.len() as u64);
+                        Ok(terrain::block_hash(bytes))
+                    },
+                )
+                .collect()
+        }
+    }
+    layout.visit(Gather { z, bounds, side, out, output, progress })
+}

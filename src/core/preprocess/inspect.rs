@@ -1,0 +1,166 @@
+//! `relief info` and `relief verify`: what a terrain file holds, and whether it is intact.
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::dem::DemFormat;
+use crate::error::Result;
+use crate::format::terrain::{Record, TerrainFile, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED};
+use crate::layout::Layout;
+use crate::preprocess::nesting_violation;
+use crate::sys::cancel;
+use crate::sys::progress::Progress;
+
+/// Everything `info` reports (JSON keys are part of the interface).
+#[derive(Clone, Debug, Serialize)]
+pub struct Info {
+    pub file: String,
+    pub version: u32,
+    pub grid_size: u32,
+    pub levels: u32,
+    pub layout: String,
+    pub layout_param: u32,
+    pub records: u64,
+    pub vertices: u64,
+    pub waste_ratio: f64,
+    pub record_bytes: u32,
+    pub spacing_m: [f64; 2],
+    pub spacing_assumed: bool,
+    pub extent_m: [f64; 2],
+    pub z_min: f64,
+    pub z_max: f64,
+    pub z_scale: f64,
+    pub z_offset: f64,
+    pub valid_window: [u32; 4],
+    pub nodata_filled: u64,
+    pub source_format: String,
+    /// Present when the source grid was geographic: its posts in degrees and the latitude at which
+    /// they were converted to metres.
+    pub geographic: Option<Geographic>,
+    pub file_bytes: u64,
+    pub payload_checksum: String,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Geographic {
+    pub spacing_deg: [f64; 2],
+    pub centre_lat_deg: f64,
+}
+
+pub fn info(file: &TerrainFile) -> Info {
+    let h = file.header();
+    let geographic = (h.flags & FLAG_GEOGRAPHIC != 0)
+        .then_some(Geographic { spacing_deg: h.source_spacing_deg, centre_lat_deg: h.source_centre_lat_deg });
+    Info {
+        file: file.path().display().to_string(),
+        version: h.version,
+        grid_size: h.grid().size(),
+        levels: h.grid().levels(),
+        layout: h.layout.name().into(),
+        layout_param: h.layout_param,
+        records: h.records,
+        vertices: h.vertices(),
+        waste_ratio: file.layout().waste_ratio(),
+        record_bytes: h.record_bytes,
+        spacing_m: h.spacing_m,
+        spacing_assumed: h.flags & FLAG_SPACING_ASSUMED != 0,
+        extent_m: h.extent_m(),
+        z_min: h.z_min,
+        z_max: h.z_max,
+        z_scale: h.z_scale,
+        z_offset: h.z_offset,
+        valid_window: h.valid_window,
+        nodata_filled: h.nodata_filled,
+        source_format: DemFormat::ALL.get(h.source_format as usize).map(|f| f.name()).unwrap_or("unknown").into(),
+        geographic,
+        file_bytes: h.payload_offset + h.payload_bytes,
+        payload_checksum: format!("{:016x}", h.payload_checksum),
+    }
+}
+
+/// The outcome of `verify`.
+#[derive(Clone, Debug, Serialize)]
+pub struct VerifyReport {
+    pub file: String,
+    pub ok: bool,
+    pub header_checksum_ok: bool,
+    pub payload_checksum_ok: bool,
+    pub vertices_checked: u64,
+    /// Vertices whose height, error or radius break the nesting invariants.
+    pub nesting_violations: u64,
+    /// Heights outside the header's [z_min, z_max].
+    pub out_of_range: u64,
+    /// Unused index slots that are not all zero.
+    pub dirty_unused_slots: u64,
+    /// Up to ten descriptions of failures.
+    pub problems: Vec<String>,
+}
+
+/// Checks the payload checksum and, for every vertex, the nesting invariants (error ≥ raw error,
+/// error ≥ children's, sphere ⊇ children's spheres), heights within the header's range, and that
+/// unused slots are zero. The header checksum was already checked by [`TerrainFile::open`].
+pub fn verify(file: &TerrainFile, progress: Progress) -> Result<VerifyReport> {
+    let h = file.header();
+    let grid = h.grid();
+    let layout = file.layout();
+    let records = file.records();
+    let mut problems = Vec::new();
+    let payload_checksum_ok = match file.verify_payload() {
+        Ok(()) => true,
+        Err(e) => {
+            problems.push(e.to_string());
+            false
+        }
+    };
+    let side = grid.size();
+    let get = |x: u32, y: u32| records[layout.index(x, y) as usize];
+    let (z_lo, z_hi) = (h.z_min as f32, h.z_max as f32);
+    let bar = progress.bar("verify", grid.vertices(), "vertices");
+    let per_row: Vec<(u64, u64, Option<String>)> = (0..side)
+        .into_par_iter()
+        .map(|y| -> Result<(u64, u64, Option<String>)> {
+            cancel::check()?;
+            let (mut bad, mut range, mut first) = (0u64, 0u64, None);
+            for x in 0..side {
+                if let Some(p) = nesting_violation(grid, h.spacing_m, get, x, y) {
+                    bad += 1;
+                    first.get_or_insert(p);
+                }
+                let z = get(x, y).z;
+                if !(z >= z_lo && z <= z_hi) {
+                    range += 1;
+                    first.get_or_insert(format!("({x}, {y}): height {z} outside {}..{}", h.z_min, h.z_max));
+                }
+            }
+            bar.inc(side as u64);
+            Ok((bad, range, first))
+        })
+        .collect::<Result<_>>()?;
+    bar.finish_and_clear();
+    let nesting_violations = per_row.iter().map(|r| r.0).sum();
+    let out_of_range = per_row.iter().map(|r| r.1).sum();
+    problems.extend(per_row.into_iter().filter_map(|r| r.2).take(10));
+
+    let zero = Record::default();
+    let dirty_unused_slots = if h.records > grid.vertices() {
+        records.par_iter().enumerate().filter(|(i, r)| **r != zero && layout.coords(*i as u64).is_none()).count() as u64
+    } else {
+        0
+    };
+    if dirty_unused_slots > 0 {
+        problems.push(format!("{dirty_unused_slots} unused index slots are not zero"));
+    }
+    problems.truncate(10);
+    let ok = payload_checksum_ok && nesting_violations == 0 && out_of_range == 0 && dirty_unused_slots == 0;
+    Ok(VerifyReport {
+        file: file.path().display().to_string(),
+        ok,
+        header_checksum_ok: true,
+        payload_checksum_ok,
+        vertices_checked: grid.vertices(),
+        nesting_violations,
+        out_of_range,
+        dirty_unused_slots,
+        problems,
+    })
+}

@@ -1,0 +1,975 @@
+//! View-dependent refinement into one triangle strip: Lindstrom & Pascucci, *Visualization of Large
+//! Terrains Made Easy* (IEEE Visualization 2001), §3–4, with geomorphing from the journal
+//! follow-up (*Terrain Simplification Simplified*, IEEE TVCG 2002), and refinement on several
+//! threads (ours).
+//!
+//! One recursive, top-down pass over the mapped records decides which vertices are active (nested
+//! error and bounding sphere against the view, [`crate::refine::metric`]), culls bounding spheres against the
+//! view frustum with an inherited plane mask, and appends the mesh to a single triangle strip in the
+//! same pass. Because errors and radii are nested, a vertex is only ever active when its DAG parents
+//! are, so the mesh is conforming by construction and no dependency lists are kept.
+//!
+//! The strip is generic over the record [`Layout`] and the record source, so the child computation
+//! and record reads are monomorphised into the loop. Per-frame work is proportional to the output;
+//! buffers are reused between frames (no allocation per vertex once warm).
+//!
+//! Strip convention: triangle k is `(v_k, v_k+1, v_k+2)` for even k and `(v_k+1, v_k, v_k+2)` for
+//! odd k; every non-degenerate triangle is then clockwise seen from above (+z), i.e. its front face
+//! is the underside in a right-handed, z-up world. Renderers set their front face accordingly.
+
+pub mod check;
+pub mod metric;
+pub mod minimal;
+pub mod report;
+
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::camera::{Camera, PLANES};
+use crate::format::terrain::{Record, TerrainFile};
+use crate::layout::hierarchy::Grid;
+use crate::layout::{Layout, LayoutVisitor, Vertex};
+use crate::refine::metric::{ErrorMetric, Isotropic, MetricKind, Projected};
+
+/// Where refinement reads vertex records from, by layout index. The mapped file is a slice; an
+/// instrumented source (page-fault experiments) can observe every read without touching the loop.
+pub trait RecordSource: Sync {
+    fn record(&self, index: u64) -> Record;
+
+    /// Hint that `record(index)` will be read soon (a cache prefetch); must not fault.
+    #[inline(always)]
+    fn prefetch(&self, _index: u64) {}
+}
+
+impl RecordSource for [Record] {
+    #[inline(always)]
+    fn record(&self, index: u64) -> Record {
+        self[index as usize]
+    }
+
+    #[inline(always)]
+    fn prefetch(&self, index: u64) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(r) = self.get(index as usize) {
+            // SAFETY: a prefetch is only a hint; the address is inside the slice.
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((r as *const Record).cast())
+            }
+        }
+    }
+}
+
+/// A strip vertex: grid coordinates (`x` east, `y` north, in posts). The renderer turns them into
+/// positions from its own copy of the heights.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, PartialOrd, Ord, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct StripVertex {
+    pub x: u32,
+    pub y: u32,
+}
+
+/// Geomorph state of a strip vertex: `blend` ∈ [0, 1] (0 at the edge midpoint's height, 1 at the
+/// true height) and the height to draw, metres, which already includes the blends of the vertices
+/// it is interpolated from.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct Morph {
+    pub blend: f32,
+    pub z_m: f32,
+}
+
+/// One triangle strip for the whole terrain, with a geomorph entry per vertex when geomorphing is on.
+#[derive(Clone, Debug, Default)]
+pub struct Strip {
+    pub vertices: Vec<StripVertex>,
+    /// Same length as `vertices` when geomorphing is on, else empty.
+    pub morph: Vec<Morph>,
+    parity: u8,
+}
+
+impl Strip {
+    pub fn new() -> Strip {
+        Strip::default()
+    }
+
+    /// A strip of given vertices, without geomorph data (for checks and tests).
+    pub fn from_vertices(vertices: Vec<StripVertex>) -> Strip {
+        let parity = (vertices.len() % 2) as u8;
+        Strip { vertices, morph: Vec::new(), parity }
+    }
+
+    /// Starts a strip at `v` (as the paper: `V = (v, v)`, parity 0).
+    fn seed(&mut self, v: StripVertex, m: Morph, morph: bool) {
+        self.vertices.clear();
+        self.morph.clear();
+        self.vertices.extend([v, v]);
+        if morph {
+            self.morph.extend([m, m]);
+        }
+        self.parity = 0;
+    }
+
+    /// The paper's `strip_append`: skips a vertex equal to one of the last two, and inserts one
+    /// degenerate triangle (repeating the second-to-last vertex) when the vertex would land with the
+    /// wrong winding. Invariant: `parity == len % 2`, so a vertex appended with parity p always lands
+    /// at an index of parity `1 − p`.
+    #[inline(always)]
+    fn append(&mut self, v: StripVertex, parity: u8, m: Morph, morph: bool) {
+        let n = self.vertices.len();
+        debug_assert!(n >= 2);
+        let (prev, last) = (self.vertices[n - 2], self.vertices[n - 1]);
+        if v == last || v == prev {
+            return;
+        }
+        if parity != self.parity {
+            self.parity = parity;
+        } else {
+            self.vertices.push(prev);
+            if morph {
+                let pm = self.morph[n - 2];
+                self.morph.push(pm);
+            }
+        }
+        self.vertices.push(v);
+        if morph {
+            self.morph.push(m);
+        }
+    }
+
+    /// Appends without any check (ends the strip; stitches chunks).
+    #[inline(always)]
+    fn push(&mut self, v: StripVertex, m: Morph, morph: bool) {
+        self.vertices.push(v);
+        if morph {
+            self.morph.push(m);
+        }
+    }
+
+    /// Number of strip vertices.
+    pub fn len(&self) -> usize {
+        self.vertices.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.vertices.is_empty()
+    }
+
+    /// Non-degenerate triangles, oriented as drawn (clockwise from above), in strip order.
+    pub fn triangles(&self) -> impl Iterator<Item = [StripVertex; 3]> + '_ {
+        self.vertices.windows(3).enumerate().filter_map(|(k, w)| {
+            if w[0] == w[1] || w[1] == w[2] || w[0] == w[2] {
+                None
+            } else if k % 2 == 0 {
+                Some([w[0], w[1], w[2]])
+            } else {
+                Some([w[1], w[0], w[2]])
+            }
+        })
+    }
+
+    /// `(non-degenerate, degenerate)` triangle counts.
+    pub fn triangle_counts(&self) -> (u64, u64) {
+        let total = self.vertices.len().saturating_sub(2) as u64;
+        let good = self.vertices.windows(3).filter(|w| w[0] != w[1] && w[1] != w[2] && w[0] != w[2]).count() as u64;
+        (good, total - good)
+    }
+}
+
+/// What to refine for: tolerance, metric, culling, geomorphing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RefineOptions {
+    /// Screen-space error tolerance τ, pixels.
+    pub tolerance_px: f64,
+    pub metric: MetricKind,
+    /// Cull bounding spheres against the view frustum.
+    pub cull: bool,
+    /// Geomorphing: vertices blend in between the distances that project their error to τ and to
+    /// `morph_ratio · τ` (> 1). `None`: off (no morph data is produced).
+    pub morph_ratio: Option<f64>,
+}
+
+impl Default for RefineOptions {
+    fn default() -> Self {
+        RefineOptions { tolerance_px: 1.0, metric: MetricKind::Isotropic, cull: true, morph_ratio: None }
+    }
+}
+
+/// Per-pass counts.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct RefineCounters {
+    /// Active tests evaluated (one per visited vertex and triangle side).
+    pub visited: u64,
+    /// Vertices whose error asked for refinement but whose sphere lay outside the frustum.
+    pub culled: u64,
+}
+
+impl std::ops::AddAssign for RefineCounters {
+    fn add_assign(&mut self, o: RefineCounters) {
+        self.visited += o.visited;
+        self.culled += o.culled;
+    }
+}
+
+/// Everything the active test needs for one frame, in world metres.
+#[derive(Clone, Debug)]
+pub struct View<M: ErrorMetric> {
+    pub metric: M,
+    eye: DVec3,
+    spacing_m: [f64; 2],
+    kappa: f64,
+    kappa_inner: f64,
+    normals: [DVec3; PLANES],
+    /// Slack added to a vertex's radius per level (metres), so that rounding in the f64 test can
+    /// never make a child active while its parent is not; ~1e-12 of the scene's scale.
+    margin_m: f64,
+    cull: bool,
+    morph: bool,
+}
+
+/// Result of testing one vertex.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Test {
+    Inactive,
+    /// Error asks for refinement but the sphere is outside the frustum.
+    Culled,
+    /// Active; planes the sphere is not yet known to be inside of.
+    Active {
+        mask: u8,
+    },
+}
+
+impl<M: ErrorMetric> View<M> {
+    /// Builds the per-frame view. `extent_m` and `z_range_m` give the scene's scale for the rounding
+    /// margin.
+    pub fn new(
+        camera: &Camera,
+        options: &RefineOptions,
+        metric: M,
+        spacing_m: [f64; 2],
+        extent_m: [f64; 2],
+        z_range_m: [f64; 2],
+    ) -> View<M> {
+        let kappa = camera.kappa(options.tolerance_px);
+        let ratio = options.morph_ratio.unwrap_or(1.0);
+        let scale = [
+            extent_m[0],
+            extent_m[1],
+            z_range_m[0].abs(),
+            z_range_m[1].abs(),
+            camera.eye_in_world.abs().max_element(),
+            1.0,
+        ]
+        .into_iter()
+        .filter(|v| v.is_finite())
+        .fold(0.0, f64::max);
+        View {
+            metric,
+            eye: camera.eye_in_world,
+            spacing_m,
+            kappa,
+            kappa_inner: kappa / ratio,
+            normals: camera.frustum_normals(),
+            margin_m: scale * (2f64).powi(-40),
+            cull: options.cull,
+            morph: options.morph_ratio.is_some(),
+        }
+    }
+
+    /// The plane mask a refinement starts with.
+    pub fn full_mask(&self) -> u8 {
+        if self.cull {
+            (1u8 << PLANES) - 1
+        } else {
+            0
+        }
+    }
+
+    /// World position of grid post `(x, y)` with height `z`.
+    #[inline(always)]
+    pub fn position(&self, x: u32, y: u32, z: f32) -> DVec3 {
+        DVec3::new(x as f64 * self.spacing_m[0], y as f64 * self.spacing_m[1], z as f64)
+    }
+
+    /// The active test with frustum culling against the planes in `mask` (see [`Test`]).
+    #[inline(always)]
+    pub fn test<const CULL: bool>(&self, x: u32, y: u32, level: u32, rec: Record, mask: u8) -> Test {
+        let rel = self.position(x, y, rec.z) - self.eye;
+        let r = rec.radius as f64 + self.margin_m * level as f64;
+        let reach = self.kappa * rec.error as f64 + r;
+        // Written so that a NaN anywhere (a corrupt record) reads as inactive.
+        let active = reach * reach > self.metric.distance_sq(rel);
+        if !active {
+            return Test::Inactive;
+        }
+        let mut mask = mask;
+        if CULL && mask != 0 {
+            for (k, n) in self.normals.iter().enumerate() {
+                let bit = 1u8 << k;
+                if mask & bit != 0 {
+                    let s = n.dot(rel);
+                    if s < -r {
+                        return Test::Culled;
+                    }
+                    if s > r {
+                        mask &= !bit;
+                    }
+                }
+            }
+        }
+        Test::Active { mask }
+    }
+
+    /// Whether a vertex is active, evaluated from scratch (all planes); equals what refinement
+    /// decides along any path.
+    pub fn is_active(&self, x: u32, y: u32, level: u32, rec: Record) -> bool {
+        let t = if self.cull {
+            self.test::<true>(x, y, level, rec, self.full_mask())
+        } else {
+            self.test::<false>(x, y, level, rec, 0)
+        };
+        matches!(t, Test::Active { .. })
+    }
+
+    /// Geomorph blend of an active vertex: 0 where it just became active, 1 inside the inner radius.
+    #[inline(always)]
+    fn blend(&self, x: u32, y: u32, level: u32, rec: Record) -> f32 {
+        let rel = self.position(x, y, rec.z) - self.eye;
+        let r = rec.radius as f64 + self.margin_m * level as f64;
+        let outer = self.kappa * rec.error as f64 + r;
+        let inner = self.kappa_inner * rec.error as f64 + r;
+        let span = outer * outer - inner * inner;
+        if span > 0.0 && span.is_finite() {
+            ((outer * outer - self.metric.distance_sq(rel)) / span).clamp(0.0, 1.0) as f32
+        } else if rec.error > 0.0 {
+            1.0 // infinite error (never refined away)
+        } else {
+            // Zero error: the vertex lies on its edge and follows its end points; it was activated
+            // by its sphere alone and must not snap.
+            0.0
+        }
+    }
+
+    /// Whether a point (no radius) lies inside the frustum (always, with culling off).
+    pub fn point_in_frustum(&self, p: DVec3) -> bool {
+        !self.cull || self.normals.iter().all(|n| n.dot(p - self.eye) >= 0.0)
+    }
+
+    /// Whether `κ δ > D`: an un-nested error at `p` projects over the tolerance.
+    pub fn error_projects_over(&self, p: DVec3, error_m: f64) -> bool {
+        let reach = self.kappa * error_m;
+        reach * reach > self.metric.distance_sq(p - self.eye)
+    }
+}
+
+/// Calls a generic function with a terrain's concrete layout and a [`View`] of the chosen metric
+/// (for monomorphised loops over one frame).
+pub trait ViewVisitor {
+    type Output;
+    fn visit<L: Layout, M: ErrorMetric>(self, layout: &L, view: &View<M>) -> Self::Output;
+}
+
+/// Builds the view of `terrain` for `camera` and `options` and hands it, with the terrain's layout,
+/// to `visitor`.
+pub fn with_view<V: ViewVisitor>(
+    terrain: &TerrainFile,
+    camera: &Camera,
+    options: &RefineOptions,
+    visitor: V,
+) -> V::Output {
+    struct Go<'a, V> {
+        terrain: &'a TerrainFile,
+        camera: &'a Camera,
+        options: &'a RefineOptions,
+        visitor: V,
+    }
+    impl<V: ViewVisitor> LayoutVisitor for Go<'_, V> {
+        type Output = V::Output;
+        fn visit<L: Layout>(self, layout: &L) -> V::Output {
+            let h = self.terrain.header();
+            let (spacing, extent, z_range) = (h.spacing_m, h.extent_m(), [h.z_min, h.z_max]);
+            match self.options.metric {
+                MetricKind::Isotropic => {
+                    let view = View::new(self.camera, self.options, Isotropic, spacing, extent, z_range);
+                    self.visitor.visit(layout, &view)
+                }
+                MetricKind::Projected => {
+                    let metric = Projected { forward: self.camera.forward() };
+                    let view = View::new(self.camera, self.options, metric, spacing, extent, z_range);
+                    self.visitor.visit(layout, &view)
+                }
+            }
+        }
+    }
+    terrain.layout().visit(Go { terrain, camera, options, visitor })
+}
+
+/// Morphed heights of a triangle's corners (left end of the hypotenuse, apex, right end) and the
+/// apex's blend, carried down the recursion.
+#[derive(Clone, Copy, Debug, Default)]
+struct MorphTri {
+    z_left: f32,
+    z_apex: f32,
+    z_right: f32,
+    blend_left: f32,
+    blend_apex: f32,
+}
+
+impl MorphTri {
+    #[inline(always)]
+    fn apex(&self) -> Morph {
+        Morph { blend: self.blend_apex, z_m: self.z_apex }
+    }
+    #[inline(always)]
+    fn left(&self) -> Morph {
+        Morph { blend: self.blend_left, z_m: self.z_left }
+    }
+}
+
+/// What the recursion carries for geomorphing: [`MorphTri`] when on, nothing when off (so the
+/// plain refinement passes no extra arguments).
+trait Carry: Copy + Send + Sync + 'static {
+    const ON: bool;
+    fn new(t: &MorphTri) -> Self;
+    fn apex(&self) -> Morph;
+    /// Height the split vertex morphs from: the mean of the hypotenuse's (morphed) ends.
+    fn mid(&self) -> f32;
+    /// The states of the left and right halves, given the split vertex's morphed height and blend.
+    fn halves(&self, z_split: f32, blend_split: f32) -> (Self, Self);
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct NoMorph;
+
+impl Carry for NoMorph {
+    const ON: bool = false;
+    #[inline(always)]
+    fn new(_: &MorphTri) -> Self {
+        NoMorph
+    }
+    #[inline(always)]
+    fn apex(&self) -> Morph {
+        Morph::default()
+    }
+    #[inline(always)]
+    fn mid(&self) -> f32 {
+        0.0
+    }
+    #[inline(always)]
+    fn halves(&self, _: f32, _: f32) -> (Self, Self) {
+        (NoMorph, NoMorph)
+    }
+}
+
+impl Carry for MorphTri {
+    const ON: bool = true;
+    #[inline(always)]
+    fn new(t: &MorphTri) -> Self {
+        *t
+    }
+    #[inline(always)]
+    fn apex(&self) -> Morph {
+        MorphTri::apex(self)
+    }
+    #[inline(always)]
+    fn mid(&self) -> f32 {
+        0.5 * (self.z_left + self.z_right)
+    }
+    #[inline(always)]
+    fn halves(&self, z: f32, blend: f32) -> (Self, Self) {
+        let m = self;
+        (
+            MorphTri { z_left: m.z_left, z_apex: z, z_right: m.z_apex, blend_left: m.blend_left, blend_apex: blend },
+            MorphTri { z_left: m.z_apex, z_apex: z, z_right: m.z_right, blend_left: m.blend_apex, blend_apex: blend },
+        )
+    }
+}
+
+#[inline(always)]
+fn sv(v: Vertex) -> StripVertex {
+    StripVertex { x: v.x, y: v.y }
+}
+
+/// The recursion state of one (sub)strip.
+struct Walk<'a, L, R: ?Sized, M: ErrorMetric, const CULL: bool, S: Carry> {
+    layout: &'a L,
+    records: &'a R,
+    view: &'a View<M>,
+    strip: &'a mut Strip,
+    counters: RefineCounters,
+    carry: std::marker::PhantomData<S>,
+}
+
+/// What testing a triangle's split vertex gives the recursion.
+struct Split {
+    mask: u8,
+    z: f32,
+    blend: f32,
+}
+
+impl<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, S: Carry> Walk<'_, L, R, M, CULL, S> {
+    /// Tests split vertex `j` (level `lj`) of a triangle whose morph state is `m`.
+    #[inline(always)]
+    fn test_split(&mut self, j: Vertex, lj: u32, mask: u8, m: &S) -> Option<Split> {
+        self.counters.visited += 1;
+        let rec = self.records.record(j.index);
+        match self.view.test::<CULL>(j.x, j.y, lj, rec, mask) {
+            Test::Inactive => None,
+            Test::Culled => {
+                self.counters.culled += 1;
+                None
+            }
+            Test::Active { mask } => {
+                if S::ON {
+                    let blend = self.view.blend(j.x, j.y, lj, rec);
+                    let mid = m.mid();
+                    Some(Split { mask, z: mid + blend * (rec.z - mid), blend })
+                } else {
+                    Some(Split { mask, z: 0.0, blend: 1.0 })
+                }
+            }
+        }
+    }
+
+    /// The hoisted `submesh_refine`: triangle with active apex `i` (level `l`) and hypotenuse
+    /// midpoint `j`. Tests `j` once; recurses into both halves if it is active, appending `i`
+    /// between them, else appends `i` alone.
+    fn sub(&mut self, i: Vertex, j: Vertex, l: u32, mask: u8, m: S) {
+        if l >= 2 {
+            if let Some(s) = self.test_split(j, l - 1, mask, &m) {
+                if l >= 3 {
+                    let [cl, cr] = self.layout.split_children(i, j);
+                    if L::PREFETCH_GRANDCHILDREN && l >= 4 {
+                        // The grandchildren are read right after the children: start their loads
+                        // now, so their latency overlaps the children's.
+                        for c in [cl, cr] {
+                            let [a, b] = self.layout.split_children(j, c);
+                            self.records.prefetch(a.index);
+                            self.records.prefetch(b.index);
+                        }
+                    }
+                    let (left, right) = m.halves(s.z, s.blend);
+                    self.sub(j, cl, l - 1, s.mask, left);
+                    self.strip.append(sv(i), (l & 1) as u8, m.apex(), S::ON);
+                    self.sub(j, cr, l - 1, s.mask, right);
+                } else {
+                    // j is a finest-level vertex: its triangles have no children.
+                    let mj = Morph { blend: s.blend, z_m: s.z };
+                    self.strip.append(sv(j), 1, mj, S::ON);
+                    self.strip.append(sv(i), 0, m.apex(), S::ON);
+                    self.strip.append(sv(j), 1, mj, S::ON);
+                }
+                return;
+            }
+        }
+        self.strip.append(sv(i), (l & 1) as u8, m.apex(), S::ON);
+    }
+}
+
+/// A pending triangle of the top levels, refined as one task on a worker thread.
+#[derive(Clone, Copy, Debug)]
+struct Task {
+    apex: Vertex,
+    split: Vertex,
+    /// Left end of the hypotenuse: the strip arrives there before the task's vertices.
+    left: StripVertex,
+    level: u32,
+    mask: u8,
+    m: MorphTri,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Item {
+    Append(StripVertex, u8, Morph),
+    Task(usize),
+}
+
+/// Default for [`Refiner::set_parallel_min_len`]: about 10⁴ triangles, below which two threads
+/// measured no faster than one (BENCHMARKS.md).
+pub const PARALLEL_MIN_LEN: usize = 16_384;
+
+/// Runs refinement, single-threaded or split across a thread pool, reusing its buffers between
+/// frames.
+pub struct Refiner {
+    pool: Option<rayon::ThreadPool>,
+    threads: usize,
+    /// Strips shorter than this (judged by the previous frame's) are refined on the calling
+    /// thread: splitting them costs more than it saves.
+    parallel_min_len: usize,
+    last_len: usize,
+    items: Vec<Item>,
+    next_items: Vec<Item>,
+    tasks: Vec<Task>,
+    next_tasks: Vec<Task>,
+    chunks: Vec<Strip>,
+}
+
+impl Refiner {
+    /// A refiner using `threads` threads (1: the calling thread only, no pool).
+    pub fn new(threads: usize) -> crate::Result<Refiner> {
+        let threads = threads.max(1);
+        let pool = if threads > 1 {
+            Some(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .thread_name(|k| format!("relief-refine-{k}"))
+                    .build()
+                    .map_err(|e| {
+                        crate::Error::InvalidArgument(format!("cannot start {threads} refinement threads: {e}"))
+                    })?,
+            )
+        } else {
+            None
+        };
+        Ok(Refiner {
+            pool,
+            threads,
+            parallel_min_len: PARALLEL_MIN_LEN,
+            last_len: usize::MAX,
+            items: Vec::new(),
+            next_items: Vec::new(),
+            tasks: Vec::new(),
+            next_tasks: Vec::new(),
+            chunks: Vec::new(),
+        })
+    }
+
+    pub fn threads(&self) -> usize {
+        self.threads
+    }
+
+    /// Refine on the pool only when the previous strip had at least `len` vertices (default
+    /// [`PARALLEL_MIN_LEN`]; 0: always).
+    pub fn set_parallel_min_len(&mut self, len: usize) {
+        self.parallel_min_len = len;
+    }
+
+    /// Refines a mapped terrain file for `camera`, writing the strip into `strip`.
+    pub fn refine_file(
+        &mut self,
+        terrain: &TerrainFile,
+        camera: &Camera,
+        options: &RefineOptions,
+        strip: &mut Strip,
+    ) -> RefineCounters {
+        self.refine_source(terrain, terrain.records(), camera, options, strip)
+    }
+
+    /// Like [`Self::refine_file`], reading records through `records` (same layout as `terrain`).
+    pub fn refine_source<R: RecordSource + ?Sized>(
+        &mut self,
+        terrain: &TerrainFile,
+        records: &R,
+        camera: &Camera,
+        options: &RefineOptions,
+        strip: &mut Strip,
+    ) -> RefineCounters {
+        struct Go<'a, R: ?Sized> {
+            refiner: &'a mut Refiner,
+            records: &'a R,
+            strip: &'a mut Strip,
+        }
+        impl<R: RecordSource + ?Sized> ViewVisitor for Go<'_, R> {
+            type Output = RefineCounters;
+            fn visit<L: Layout, M: ErrorMetric>(self, layout: &L, view: &View<M>) -> RefineCounters {
+                self.refiner.refine(layout, self.records, view, self.strip)
+            }
+        }
+        with_view(terrain, camera, options, Go { refiner: self, records, strip })
+    }
+
+    /// The generic entry: layout, record source and metric are all monomorphised.
+    pub fn refine<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric>(
+        &mut self,
+        layout: &L,
+        records: &R,
+        view: &View<M>,
+        strip: &mut Strip,
+    ) -> RefineCounters {
+        match (view.cull, view.morph) {
+            (false, false) => self.refine_mode::<L, R, M, false, NoMorph>(layout, records, view, strip),
+            (true, false) => self.refine_mode::<L, R, M, true, NoMorph>(layout, records, view, strip),
+            (false, true) => self.refine_mode::<L, R, M, false, MorphTri>(layout, records, view, strip),
+            (true, true) => self.refine_mode::<L, R, M, true, MorphTri>(layout, records, view, strip),
+        }
+    }
+
+    fn refine_mode<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, S: Carry>(
+        &mut self,
+        layout: &L,
+        records: &R,
+        view: &View<M>,
+        strip: &mut Strip,
+    ) -> RefineCounters {
+        let grid = layout.grid();
+        let [sw, se, ne, nw] = grid.corners().map(|(x, y)| layout.vertex(x, y));
+        let (cx, cy) = grid.centre();
+        let c = layout.vertex(cx, cy);
+        let corner_morph = |v: Vertex| {
+            let z = records.record(v.index).z;
+            Morph { blend: 1.0, z_m: z }
+        };
+        let corners = [sw, se, ne, nw].map(|v| (v, corner_morph(v)));
+        let zc = records.record(c.index).z;
+        let [w, s, e, n] = grid.edge_midpoints().map(|(x, y)| layout.vertex(x, y));
+        // The four root triangles around the centre, in strip order: (c; sw, se) split at s, …
+        let roots = [(s, 0usize), (e, 1), (n, 2), (w, 3)].map(|(split, k)| {
+            let (left, ml) = corners[k];
+            let (_, mr) = corners[(k + 1) % 4];
+            Task {
+                apex: c,
+                split,
+                left: sv(left),
+                level: grid.levels(),
+                mask: view.full_mask(),
+                m: MorphTri { z_left: ml.z_m, z_apex: zc, z_right: mr.z_m, blend_left: 1.0, blend_apex: 1.0 },
+            }
+        });
+        strip.seed(sv(sw), corners[0].1, S::ON);
+        let parallel = self.pool.is_some() && grid.levels() >= 8 && self.last_len >= self.parallel_min_len;
+        let counters = if parallel {
+            self.refine_parallel::<L, R, M, CULL, S>(layout, records, view, strip, &roots, &corners)
+        } else {
+            let mut walk = Walk::<L, R, M, CULL, S> {
+                layout,
+                records,
+                view,
+                strip,
+                counters: Default::default(),
+                carry: Default::default(),
+            };
+            for (k, t) in roots.iter().enumerate() {
+                walk.sub(t.apex, t.split, t.level, t.mask, S::new(&t.m));
+                if k < 3 {
+                    let (v, m) = corners[k + 1];
+                    walk.strip.append(sv(v), 1, m, S::ON);
+                }
+            }
+            walk.counters
+        };
+        strip.push(sv(sw), corners[0].1, S::ON);
+        self.last_len = strip.len();
+        counters
+    }
+
+    /// Expands the top of the recursion breadth-first (keeping strip order) until there are enough
+    /// tasks to balance the pool, refines the tasks in parallel into their own strips, then
+    /// stitches them with degenerate triangles so that every vertex keeps its winding parity.
+    fn refine_parallel<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, S: Carry>(
+        &mut self,
+        layout: &L,
+        records: &R,
+        view: &View<M>,
+        strip: &mut Strip,
+        roots: &[Task; 4],
+        corners: &[(Vertex, Morph); 4],
+    ) -> RefineCounters {
+        let mut counters = RefineCounters::default();
+        self.items.clear();
+        self.tasks.clear();
+        for (k, t) in roots.iter().enumerate() {
+            self.items.push(Item::Task(self.tasks.len()));
+            self.tasks.push(*t);
+            if k < 3 {
+                let (v, m) = corners[k + 1];
+                self.items.push(Item::Append(sv(v), 1, m));
+            }
+        }
+        // Many more tasks than threads, so that work stealing evens out the view-dependent cost.
+        let target = 64 * self.threads;
+        let mut scratch = Strip::new();
+        while self.tasks.len() < target {
+            let mut expanded = false;
+            self.next_items.clear();
+            self.next_tasks.clear();
+            for item in self.items.iter() {
+                let Item::Task(k) = *item else {
+                    self.next_items.push(*item);
+                    continue;
+                };
+                let t = self.tasks[k];
+                if t.level < 3 {
+                    self.next_items.push(Item::Task(self.next_tasks.len()));
+                    self.next_tasks.push(t);
+                    continue;
+                }
+                expanded = true;
+                let mut walk = Walk::<L, R, M, CULL, S> {
+                    layout,
+                    records,
+                    view,
+                    strip: &mut scratch,
+                    counters: Default::default(),
+                    carry: Default::default(),
+                };
+                let split = walk.test_split(t.split, t.level - 1, t.mask, &S::new(&t.m));
+                counters += walk.counters;
+                match split {
+                    None => self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, t.m.apex())),
+                    Some(s) => {
+                        let [cl, cr] = layout.split_children(t.apex, t.split);
+                        let (left, right) = Carry::halves(&t.m, s.z, s.blend);
+                        self.next_items.push(Item::Task(self.next_tasks.len()));
+                        self.next_tasks.push(Task {
+                            apex: t.split,
+                            split: cl,
+                            left: t.left,
+                            level: t.level - 1,
+                            mask: s.mask,
+                            m: left,
+                        });
+                        self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, t.m.apex()));
+                        self.next_items.push(Item::Task(self.next_tasks.len()));
+                        self.next_tasks.push(Task {
+                            apex: t.split,
+                            split: cr,
+                            left: sv(t.apex),
+                            level: t.level - 1,
+                            mask: s.mask,
+                            m: right,
+                        });
+                    }
+                }
+            }
+            std::mem::swap(&mut self.items, &mut self.next_items);
+            std::mem::swap(&mut self.tasks, &mut self.next_tasks);
+            if !expanded {
+                break;
+            }
+        }
+
+        if self.chunks.len() < self.tasks.len() {
+            self.chunks.resize_with(self.tasks.len(), Strip::new);
+        }
+        let tasks = &self.tasks;
+        let chunks = &mut self.chunks[..tasks.len()];
+        let pool = self.pool.as_ref().expect("parallel refinement has a pool");
+        let chunk_counters = pool.install(|| {
+            chunks
+                .par_iter_mut()
+                .zip(tasks.par_iter())
+                .map(|(chunk, t)| {
+                    chunk.seed(t.left, t.m.left(), S::ON);
+                    let mut walk = Walk::<L, R, M, CULL, S> {
+                        layout,
+                        records,
+                        view,
+                        strip: chunk,
+                        counters: Default::default(),
+                        carry: Default::default(),
+                    };
+                    walk.sub(t.apex, t.split, t.level, t.mask, S::new(&t.m));
+                    walk.counters
+                })
+                .reduce(RefineCounters::default, |mut a, b| {
+                    a += b;
+                    a
+                })
+        });
+        counters += chunk_counters;
+
+        let total: usize = self.chunks[..tasks.len()].iter().map(|c| c.len() + 1).sum();
+        strip.vertices.reserve(total + self.items.len() * 2);
+        for item in &self.items {
+            match *item {
+                Item::Append(v, p, m) => strip.append(v, p, m, S::ON),
+                Item::Task(k) => {
+                    let chunk = &self.chunks[k];
+                    let (a, ma) = (chunk.vertices[0], if S::ON { chunk.morph[0] } else { Morph::default() });
+                    // The chunk was refined from `(a, a)` with parity 0, the same invariant as the
+                    // whole strip (parity == len % 2): its vertex at local index 2 must land on an
+                    // even index, after a repeated `a` so that the seam triangles are degenerate.
+                    if strip.vertices.last() != Some(&a) {
+                        strip.push(a, ma, S::ON);
+                    }
+                    strip.push(a, ma, S::ON);
+                    if strip.len() % 2 == 1 {
+                        strip.push(a, ma, S::ON);
+                    }
+                    strip.vertices.extend_from_slice(&chunk.vertices[2..]);
+                    if S::ON {
+                        strip.morph.extend_from_slice(&chunk.morph[2..]);
+                    }
+                    strip.parity = (strip.len() % 2) as u8;
+                }
+            }
+        }
+        counters
+    }
+}
+
+/// Triangle count of the conforming bisection mesh whose inserted vertices are `vertices` (corners
+/// excluded, centre included): every interior vertex splits two triangles, a border vertex one.
+pub fn mesh_triangles(grid: Grid, vertices: impl IntoIterator<Item = (u32, u32)>) -> u64 {
+    let m = grid.max_coord();
+    let mut t = 2u64;
+    for (x, y) in vertices {
+        let border = x == 0 || y == 0 || x == m || y == m;
+        t += if border { 1 } else { 2 };
+    }
+    t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::RowMajor;
+
+    /// A 3 × 3 grid (n = 1) of flat records; the centre has infinite error, the edge midpoints
+    /// `edge_error`.
+    fn tiny(edge_error: f32) -> (RowMajor, Vec<Record>) {
+        let layout = RowMajor::new(Grid::new(1).unwrap());
+        let mut records = vec![Record { z: 0.0, error: edge_error, radius: 0.0 }; 9];
+        records[layout.index(1, 1) as usize].error = f32::INFINITY;
+        (layout, records)
+    }
+
+    fn strip_of(layout: &RowMajor, records: &[Record], tolerance_px: f64) -> Vec<(u32, u32)> {
+        let camera =
+            Camera::new(DVec3::new(1.0, 1.0, 100.0), DVec3::new(1.0, 1.0, 0.0), DVec3::Y, 60.0, 640, 480).unwrap();
+        let options = RefineOptions { tolerance_px, ..RefineOptions::default() };
+        let view = View::new(&camera, &options, Isotropic, [1.0, 1.0], [2.0, 2.0], [0.0, 0.0]);
+        let mut strip = Strip::new();
+        Refiner::new(1).unwrap().refine(layout, records, &view, &mut strip);
+        strip.vertices.iter().map(|v| (v.x, v.y)).collect()
+    }
+
+    /// Worked by hand from the paper's `strip_append` rules: only the centre active gives the four
+    /// triangles around it, each corner turn costing one degenerate triangle.
+    #[test]
+    fn centre_only_strip_is_the_four_root_triangles() {
+        let (layout, records) = tiny(0.0);
+        let s = strip_of(&layout, &records, 1.0);
+        let (sw, se, ne, nw, c) = ((0, 0), (2, 0), (2, 2), (0, 2), (1, 1));
+        assert_eq!(s, vec![sw, sw, sw, c, se, c, ne, c, nw, sw]);
+    }
+
+    /// All eight triangles of the 3 × 3 grid, again worked by hand: the edge midpoints are appended
+    /// with parity 1, so each costs one repeated centre.
+    #[test]
+    fn fully_refined_tiny_grid_strip() {
+        let (layout, records) = tiny(10.0);
+        let s = strip_of(&layout, &records, 1.0);
+        let (sw, se, ne, nw, c) = ((0, 0), (2, 0), (2, 2), (0, 2), (1, 1));
+        let (w, south, e, n) = ((0, 1), (1, 0), (2, 1), (1, 2));
+        assert_eq!(s, vec![sw, sw, south, c, se, c, e, c, ne, c, n, c, nw, c, w, sw]);
+        let strip = Strip::from_vertices(s.iter().map(|&(x, y)| StripVertex { x, y }).collect());
+        assert_eq!(strip.triangle_counts(), (8, 6));
+        // Every triangle clockwise seen from above.
+        for [a, b, c] in strip.triangles() {
+            let cross = (b.x as i64 - a.x as i64) * (c.y as i64 - a.y as i64)
+                - (b.y as i64 - a.y as i64) * (c.x as i64 - a.x as i64);
+            assert!(cross < 0);
+        }
+    }
+
+    #[test]
+    fn append_keeps_parity_equal_to_length_parity() {
+        let mut s = Strip::new();
+        s.seed(StripVertex { x: 0, y: 0 }, Morph::default(), false);
+        for (k, p) in (1..).zip([1u8, 1, 0, 0, 1, 0, 1, 1]) {
+            s.append(StripVertex { x: k, y: 0 }, p, Morph::default(), false);
+            assert_eq!(s.parity as usize, s.len() % 2);
+        }
+    }
+}
