@@ -25,12 +25,13 @@ fn bench(c: &mut Criterion) {
         convert(&dem, &out, &opts).expect("convert the Zurich DEM");
         let file = TerrainFile::open(&out).expect("open");
         let tiling = HeightTiling::with_tile(file.grid().size(), 64);
+        let records = file.mapped_records().expect("a mapped terrain");
         let mut tile = vec![0f32; 64 * 64];
         group.throughput(Throughput::Elements(tiling.layers() as u64 * 64 * 64));
         group.bench_function(BenchmarkId::from_parameter(kind.name()), |b| {
             b.iter(|| {
                 for layer in 0..tiling.layers() {
-                    fill_tile(&file, &tiling, layer, &mut tile);
+                    fill_tile(records, &file, &tiling, layer, &mut tile);
                     black_box(&tile);
                 }
             })

@@ -1,7 +1,7 @@
 //! The pager's costs: an LRU touch on a random page trace, and one refinement of the real Zürich
 //! DEM (513², ../shared/data/dem; interleaved, low oblique 1920 × 1080 view) read three ways: the
-//! plain record slice, `PagedRecords<NoTrace>` (instrumentation off: must cost the same) and
-//! `PagedRecords<LruTrace>` (every read charged to the LRU model).
+//! plain record slice, `MappedRecords<NoTrace>` (instrumentation off: must cost the same) and
+//! `MappedRecords<&LruTrace>` (every read charged to the LRU model).
 
 use std::hint::black_box;
 use std::path::Path;
@@ -11,8 +11,9 @@ use glam::DVec3;
 use relief::camera::Camera;
 use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
-use relief::pager::{LruCache, LruTrace, NoTrace, PageGeometry, PagedRecords};
+use relief::pager::{LruCache, LruTrace, NoTrace, PageGeometry};
 use relief::preprocess::convert::{convert, ConvertOptions};
+use relief::refine::MappedRecords;
 use relief::refine::{RefineOptions, Refiner, Strip};
 
 fn bench(c: &mut Criterion) {
@@ -60,15 +61,18 @@ fn bench(c: &mut Criterion) {
     let offset = file.header().payload_offset;
     let mut refiner = Refiner::new(1).expect("refiner");
     let mut strip = Strip::new();
-    let counters = refiner.refine_file(&file, &camera, &options, &mut strip);
+    let counters = refiner.refine_file(&file, &camera, &options, &mut strip).unwrap();
     group.throughput(Throughput::Elements(counters.visited));
-    group.bench_function("refine_plain", |b| b.iter(|| refiner.refine_file(&file, &camera, &options, &mut strip)));
-    let untraced = PagedRecords::new(file.records(), offset, geometry, &NoTrace, None);
+    group.bench_function("refine_plain", |b| {
+        b.iter(|| refiner.refine_file(&file, &camera, &options, &mut strip).unwrap())
+    });
+    let records = file.mapped_records().expect("a mapped terrain");
+    let untraced = MappedRecords::new(records, offset, NoTrace);
     group.bench_function("refine_notrace", |b| {
         b.iter(|| refiner.refine_source(&file, &untraced, &camera, &options, &mut strip))
     });
-    let lru = LruTrace::new(LruCache::with_pages(48));
-    let traced = PagedRecords::new(file.records(), offset, geometry, &lru, None);
+    let lru = LruTrace::new(LruCache::with_pages(48), geometry);
+    let traced = MappedRecords::new(records, offset, &lru);
     group.bench_function("refine_lru", |b| {
         b.iter(|| refiner.refine_source(&file, &traced, &camera, &options, &mut strip))
     });

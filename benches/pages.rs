@@ -10,10 +10,11 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glam::DVec3;
 use relief::camera::{Camera, UpAxis};
 use relief::flight::{orbit_box, OrbitOptions};
+use relief::format::pages::{PageFile, PageLayout};
 use relief::mesh::read_mesh;
 use relief::mesh_fly::MeshFrameSource;
+use relief::pages::build::{build_page_file, PageBuildOptions};
 use relief::pages::fetch::{FetchOptions, PageSource};
-use relief::pages::file::{build_page_file, PageBuildOptions, PageFile, PageLayout};
 use relief::pages::two_factor::{two_factor_order, TwoFactorOptions};
 
 fn bench(c: &mut Criterion) {

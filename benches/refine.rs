@@ -34,11 +34,11 @@ fn bench_file(c: &mut Criterion, group_name: &str, file: &TerrainFile) {
         let options = RefineOptions { cull, ..RefineOptions::default() };
         let mut refiner = Refiner::new(threads).expect("thread pool");
         let mut strip = Strip::new();
-        refiner.refine_file(file, &camera, &options, &mut strip);
+        refiner.refine_file(file, &camera, &options, &mut strip).unwrap();
         let (triangles, _) = strip.triangle_counts();
         group.throughput(Throughput::Elements(triangles));
         group.bench_function(BenchmarkId::new(label, layout), |b| {
-            b.iter(|| black_box(refiner.refine_file(file, &camera, &options, &mut strip)))
+            b.iter(|| black_box(refiner.refine_file(file, &camera, &options, &mut strip).unwrap()))
         });
     }
     group.finish();

@@ -830,14 +830,12 @@ fn up_parser() -> impl clap::builder::TypedValueParser<Value = UpAxis> {
 /// Whether `path` starts with the terrain file magic (a mesh otherwise; unreadable files are left
 /// to the mesh reader to report).
 fn is_terrain_file(path: &std::path::Path) -> bool {
-    has_magic(path, &relief::format::terrain::MAGIC)
+    has_magic(path, relief::format::FileKind::Terrain)
 }
 
-/// Whether the file starts with these 8 bytes.
-fn has_magic(path: &std::path::Path, expected: &[u8; 8]) -> bool {
-    let mut magic = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic)).is_ok()
-        && &magic == expected
+/// Whether the file starts with the magic of `kind`.
+fn has_magic(path: &std::path::Path, kind: relief::format::FileKind) -> bool {
+    matches!(relief::format::sniff(path), Ok(Some(k)) if k == kind)
 }
 
 /// A window's start from `--eye` and `--look` (clap makes them come together).
@@ -1293,11 +1291,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     bail!("--up: a terrain's up axis is z");
                 }
                 PathSubject::Terrain(TerrainFile::open(file)?)
-            } else if has_magic(file, &relief::pages::file::MAGIC) {
-                let bounds = relief::pages::file::PageFile::open(file)?.header().bounds;
+            } else if has_magic(file, relief::format::FileKind::Pages) {
+                let bounds = relief::format::pages::PageFile::open(file)?.header().bounds;
                 PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
-            } else if has_magic(file, &relief::metanode::blocking::MAGIC) {
-                let bounds = relief::metanode::blocking::MetaNodeFile::open(file)?.header().bounds;
+            } else if has_magic(file, relief::format::FileKind::MetaNode) {
+                let bounds = relief::format::metanode::MetaNodeFile::open(file)?.header().bounds;
                 PathSubject::Mesh(bounds, common.up.unwrap_or_else(|| UpAxis::guess(bounds.extent())))
             } else {
                 let mesh = relief::mesh::read_mesh(file)?;
@@ -1323,7 +1321,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             path.save(out)?;
             // Terrains are in metres; a mesh in its file's units, shown to about 1/1000 of its size.
             let (s, clearance_what, unit, decimals, up) = match &subject {
-                PathSubject::Terrain(t) => (path.summary(t), "min clearance above terrain", " m", 1, UpAxis::Z),
+                PathSubject::Terrain(t) => (path.summary(t)?, "min clearance above terrain", " m", 1, UpAxis::Z),
                 PathSubject::Mesh(b, up) => {
                     let decimals = (3.0 - b.diagonal().log10().floor()).clamp(0.0, 9.0) as usize;
                     (path.summary_box(b), "min distance to the mesh's box", "", decimals, *up)
@@ -1365,8 +1363,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             show_mesh(&mut source, &input, "static", flight, show)
         }
         Command::Mesh { kind: MeshCommand::Fly { file, mode, memory, cap, cold, prefetch, show } } => {
-            use relief::metanode::blocking::MetaNodeFile;
-            use relief::metanode::navigate::{ExtStore, NavOptions, Navigator, VirtStore};
+            use relief::format::metanode::MetaNodeFile;
+            use relief::metanode::navigate::{NavOptions, Navigator, PagedStore};
             use relief::metanode::source::NavSource;
             show.check()?;
             let flight = show.path.as_deref().map(FlightPath::load).transpose()?;
@@ -1377,28 +1375,38 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             if cold {
                 relief::pager::drop_from_page_cache(&file)?;
             }
-            let meta = std::sync::Arc::new(MetaNodeFile::open(&file)?);
+            let meta = MetaNodeFile::open(&file)?;
             if cold {
                 meta.advise_random()?;
             }
             let memory_bytes = parse_memory(&memory, meta.tree_bytes())?;
             let bounds = meta.header().bounds;
+            let pooled = match mode {
+                NavMode::Ext => {
+                    let f = MetaNodeFile::open_with(&file, relief::pager::Access::Pool { bytes: memory_bytes })?;
+                    if cold {
+                        f.advise_random()?;
+                    }
+                    Some(f)
+                }
+                NavMode::Virt => None,
+            };
             // The cap covers what the flight does, not start-up (cgroup v1 keeps earlier charges
             // where they were).
             let apply_cap = || cap_bytes.map(relief::pager::MemoryCap::apply).transpose();
             match mode {
                 NavMode::Virt => {
-                    let nav = Navigator::new(&meta, VirtStore::new(&meta), NavOptions::default())?;
+                    let nav = Navigator::new(&meta, PagedStore::new(&meta), NavOptions::default())?;
                     let _cap = apply_cap()?;
                     let mut source = NavSource::new(nav, bounds);
                     show_mesh(&mut source, &file, "meta-node trees, virt", flight, show)
                 }
                 NavMode::Ext => {
-                    let store = ExtStore::new(meta.clone(), memory_bytes)?;
-                    let holders = store.pool().holders();
+                    let pooled = pooled.as_ref().expect("opened with a pool above");
+                    let holders = pooled.pager().pool().map_or(0, |p| p.holders());
                     let nav = Navigator::new(
-                        &meta,
-                        store,
+                        pooled,
+                        PagedStore::new(pooled),
                         NavOptions { prefetch: prefetch.into(), ..NavOptions::default() },
                     )?;
                     let _cap = apply_cap()?;
@@ -1551,7 +1559,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Pages { kind: PagesCommand::Build { input, output, page_size, layout, step, json, quiet } } => {
-            use relief::pages::file::{build_page_file, PageBuildOptions, PageLayout};
+            use relief::format::pages::PageLayout;
+            use relief::pages::build::{build_page_file, PageBuildOptions};
             let page_bytes = parse_bytes("--page-size", &page_size)?;
             if !page_bytes.is_power_of_two() || !(1024..=1 << 20).contains(&page_bytes) {
                 bail!("--page-size must be a power of two from 1K to 1M bytes, got {page_bytes}");
@@ -1593,8 +1602,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Pages { kind: PagesCommand::Fly { file, cold, cold_frames, cap, no_backface_cull, show } } => {
+            use relief::format::pages::PageFile;
             use relief::pages::fetch::{FetchOptions, PageSource};
-            use relief::pages::file::PageFile;
             let cold = cold || cold_frames;
             let cap_bytes = cap.as_deref().map(|c| parse_bytes("--cap", c)).transpose()?;
             show.check()?;
@@ -1605,7 +1614,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             if cold {
                 relief::pager::drop_from_page_cache(&file)?;
             }
-            let pages = PageFile::open(&file)?;
+            let pages = PageFile::open_with(&file, relief::pager::Access::Read)?;
             if cold {
                 pages.advise_random()?;
             }

@@ -59,7 +59,7 @@ fn every_real_dem_converts_to_every_layout_and_verifies() {
             let g = file.grid();
             let recs: Vec<_> = (0..g.size())
                 .flat_map(|y| (0..g.size()).map(move |x| (x, y)))
-                .map(|(x, y)| file.record_at(x, y))
+                .map(|(x, y)| file.record_at(x, y).unwrap())
                 .collect();
             match &reference {
                 None => reference = Some((file, recs)),
@@ -309,8 +309,8 @@ fn hgt_png16_and_exr_fixtures_convert_end_to_end() {
     // 3″ of latitude ≈ 92.66 m; of longitude at 47.5° ≈ 62.6 m.
     assert!((i.spacing_m[1] - 92.66).abs() < 0.05 && (i.spacing_m[0] - 62.60).abs() < 0.05, "{:?}", i.spacing_m);
     // Image row r is grid row side − 1 − r.
-    assert_eq!(f.record_at(5, side - 1 - 7).z, height_at(5, 7));
-    let filled = f.record_at(10, side - 1 - 20).z;
+    assert_eq!(f.record_at(5, side - 1 - 7).unwrap().z, height_at(5, 7));
+    let filled = f.record_at(10, side - 1 - 20).unwrap().z;
     assert!((height_at(10, 20) - 20.0..height_at(10, 20) + 20.0).contains(&filled), "filled void {filled}");
     assert!(inspect::verify(&f, Progress::hidden()).unwrap().ok);
 
@@ -327,7 +327,7 @@ fn hgt_png16_and_exr_fixtures_convert_end_to_end() {
     o.z_scale = 0.01;
     convert(&png, &out, &o).unwrap();
     let f = TerrainFile::open(&out).unwrap();
-    assert_eq!(f.record_at(3, h - 1 - 4).z, height_at(3, 4));
+    assert_eq!(f.record_at(3, h - 1 - 4).unwrap().z, height_at(3, 4));
     assert_eq!(f.grid().size(), 17);
     assert!(inspect::verify(&f, Progress::hidden()).unwrap().ok);
 
@@ -348,6 +348,6 @@ fn hgt_png16_and_exr_fixtures_convert_end_to_end() {
     let r = convert(&exr_path, &out, &ConvertOptions::new(LayoutKind::Hz)).unwrap();
     assert_eq!((r.format.as_str(), r.nodata_filled, r.grid_size), ("exr", 1, 33));
     let f = TerrainFile::open(&out).unwrap();
-    assert_eq!(f.record_at(30, (h - 1 - 11) as u32).z, height_at(30, 11));
+    assert_eq!(f.record_at(30, (h - 1 - 11) as u32).unwrap().z, height_at(30, 11));
     assert!(inspect::verify(&f, Progress::hidden()).unwrap().ok);
 }

@@ -50,7 +50,7 @@ fn ground_m(t: &TerrainFile, x: f64, y: f64) -> f64 {
     let mut m = f64::NEG_INFINITY;
     for &px in &xs {
         for &py in &ys {
-            m = m.max(t.record_at(px, py).z as f64);
+            m = m.max(t.record_at(px, py).unwrap().z as f64);
         }
     }
     m
@@ -115,7 +115,7 @@ fn flyover_stays_above_every_real_dem_in_a_straight_line() {
         let path = flyover(&t, &FlyoverOptions { frames: 500, clearance_m: Some(clearance_m) }).unwrap();
         check_flyover(name, &t, &path, 500, clearance_m);
         // The summary agrees: the least clearance is at least the requested one.
-        let s = path.summary(&t);
+        let s = path.summary(&t).unwrap();
         assert_eq!(s.frames, 500);
         assert!(s.min_clearance_m.unwrap() >= clearance_m, "{name}: {s:?}");
         assert!(s.length_m >= 0.9 * diagonal_m(&t) * (1.0 - 1e-9), "{name}: {s:?}");

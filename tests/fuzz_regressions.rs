@@ -74,7 +74,7 @@ fn vdt_leaf_with_a_wild_triangle_start() {
 #[test]
 fn metanode_entry_whose_offset_overflows() {
     let path = input("metanode-entry-offset-overflow.rmn");
-    let e = relief::metanode::blocking::MetaNodeFile::open(&path).err().expect("an error").to_string();
+    let e = relief::format::metanode::MetaNodeFile::open(&path).err().expect("an error").to_string();
     assert!(e.contains("metanode-entry-offset-overflow.rmn") && e.contains("inconsistent"), "{e}");
     let dir = tempfile::tempdir().unwrap();
     let flight = dir.path().join("p.json");

@@ -12,8 +12,9 @@ use relief::faults::run_model;
 use relief::flight::{flyover, FlyoverOptions};
 use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
-use relief::pager::{LruCache, LruTrace, NoTrace, PageGeometry, PagedRecords};
+use relief::pager::{LruCache, LruTrace, NoTrace, PageGeometry};
 use relief::preprocess::convert::{convert, relayout, ConvertOptions};
+use relief::refine::MappedRecords;
 use relief::refine::{RefineOptions, Refiner, Strip};
 
 fn relief() -> Command {
@@ -33,15 +34,16 @@ fn instrumented_refinement_gives_the_plain_strip() {
         let t = convert_to("lidar_1m_f32.tif", dir.path(), kind);
         let path = flyover(&t, &FlyoverOptions::new(12)).unwrap();
         let geometry = PageGeometry::new(4096).unwrap();
-        let trace = LruTrace::new(LruCache::new(64 * 4096, geometry).unwrap());
-        let traced = PagedRecords::new(t.records(), t.header().payload_offset, geometry, &trace, None);
-        let untraced = PagedRecords::new(t.records(), t.header().payload_offset, geometry, &NoTrace, None);
+        let trace = LruTrace::new(LruCache::new(64 * 4096, geometry).unwrap(), geometry);
+        let records = t.mapped_records().unwrap();
+        let traced = MappedRecords::new(records, t.header().payload_offset, &trace);
+        let untraced = MappedRecords::new(records, t.header().payload_offset, NoTrace);
         let mut refiner = Refiner::new(1).unwrap();
         let options = RefineOptions { tolerance_px: 1.0, ..Default::default() };
         for k in 0..path.frames.len() {
             let cam = path.camera(k, 60.0, 1280, 720).unwrap();
             let (mut a, mut b, mut c) = (Strip::new(), Strip::new(), Strip::new());
-            let ca = refiner.refine_file(&t, &cam, &options, &mut a);
+            let ca = refiner.refine_file(&t, &cam, &options, &mut a).unwrap();
             let cb = refiner.refine_source(&t, &traced, &cam, &options, &mut b);
             let cc = refiner.refine_source(&t, &untraced, &cam, &options, &mut c);
             assert_eq!(a.vertices, b.vertices, "{kind} frame {k}");
@@ -89,7 +91,7 @@ fn relayout_of_a_terrain_file_equals_converting_its_dem() {
     let out = dir.path().join("relaid.relief");
     relayout(&source, &out, &ConvertOptions::new(LayoutKind::Hz)).unwrap();
     let relaid = TerrainFile::open(&out).unwrap();
-    assert_eq!(relaid.payload(), from_dem.payload(), "records differ");
+    assert_eq!(relaid.mapped_payload(), from_dem.mapped_payload(), "records differ");
     let (a, b) = (relaid.header(), from_dem.header());
     assert_eq!((a.valid_window, a.spacing_m, a.z_min, a.z_max), (b.valid_window, b.spacing_m, b.z_min, b.z_max));
     assert!(relayout(&source, source.path(), &ConvertOptions::new(LayoutKind::Hz)).is_err());

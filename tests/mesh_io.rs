@@ -188,11 +188,11 @@ fn from_terrain_round_trips_through_binary_ply() {
     assert_eq!(mesh.triangles.len(), 2 * (w - 1) * (h - 1));
     check_sane("terrain", &mesh);
     // World metres: corner posts and heights.
-    assert_eq!(mesh.positions[0], [x0 as f64 * sx, y0 as f64 * sy, f.record_at(x0, y0).z as f64]);
+    assert_eq!(mesh.positions[0], [x0 as f64 * sx, y0 as f64 * sy, f.record_at(x0, y0).unwrap().z as f64]);
     let last = (x1 - 1, y1 - 1);
     assert_eq!(
         mesh.positions[w * h - 1],
-        [last.0 as f64 * sx, last.1 as f64 * sy, f.record_at(last.0, last.1).z as f64]
+        [last.0 as f64 * sx, last.1 as f64 * sy, f.record_at(last.0, last.1).unwrap().z as f64]
     );
 
     // Through the CLI: binary little-endian PLY, read back identically.

@@ -5,16 +5,17 @@
 mod common;
 
 use std::path::Path;
-use std::sync::Arc;
 
 use glam::DVec3;
 use relief::camera::{Camera, UpAxis};
 use relief::flight::{orbit_box, OrbitOptions};
+use relief::format::metanode::MetaNodeFile;
 use relief::mesh::read_mesh;
-use relief::metanode::blocking::{write_metanode_file, BlockingOptions, Forest, MetaNodeFile};
+use relief::metanode::blocking::{write_metanode_file, BlockingOptions, Forest};
 use relief::metanode::build::{build_vdt_from_mesh, BuildOptions};
-use relief::metanode::navigate::{ExtStore, MetaStore, NavOptions, Navigator, Prefetch, VirtStore};
+use relief::metanode::navigate::{MetaStore, NavOptions, Navigator, PagedStore, Prefetch};
 use relief::metanode::{VdtFile, VdtMetric};
+use relief::pager::Access;
 
 /// Builds `mesh` with `memory_bytes` into `dir/name.vdt` and `dir/name.rmn`.
 fn build(mesh: &Path, memory_bytes: u64, dir: &Path, name: &str, blocking: BlockingOptions) -> (u64, MetaNodeFile) {
@@ -73,8 +74,8 @@ fn small_memory_build_matches_the_unlimited_build_along_a_path() {
     assert!(batches_small >= 3, "{batches_small} batches: the budget should force several");
     assert_eq!(batches_all, 1);
     let cameras = orbit_cameras(&all, 16);
-    let mut a = Navigator::new(&small, VirtStore::new(&small), NavOptions::default()).unwrap();
-    let mut b = Navigator::new(&all, VirtStore::new(&all), NavOptions::default()).unwrap();
+    let mut a = Navigator::new(&small, PagedStore::new(&small), NavOptions::default()).unwrap();
+    let mut b = Navigator::new(&all, PagedStore::new(&all), NavOptions::default()).unwrap();
     for (k, cam) in cameras.iter().enumerate() {
         for tol in [1.0, 4.0] {
             let (sa, sb) = (a.update(cam, tol).unwrap(), b.update(cam, tol).unwrap());
@@ -94,7 +95,7 @@ fn random_navigation_on_a_real_mesh_keeps_its_books_without_foldovers() {
     let dir = tempfile::tempdir().unwrap();
     let (_, f) = build(&common::mesh("bunny.off"), 1 << 32, dir.path(), "bunny", BlockingOptions::default());
     let mut nav =
-        Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
+        Navigator::new(&f, PagedStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() }).unwrap();
     let (mut splits, mut collapses) = (0, 0);
     for (k, (cam, tol)) in random_cameras(&f, 60, 5).iter().enumerate() {
         let s = nav.update(cam, *tol).unwrap();
@@ -112,26 +113,28 @@ fn a_tiny_buffer_pool_never_evicts_a_meta_node_in_use() {
     // Small pages, so the tree has many meta-nodes and the pool churns.
     let blocking = BlockingOptions { levels_per_node: 4, page_bytes: 1024 };
     let (_, f) = build(&common::mesh("armadillo.off"), 1 << 32, dir.path(), "arma", blocking);
-    let f = Arc::new(f);
     // A pool of 1/16 of the meta-nodes: the far views release blocks, the near ones want them back.
     let holders = f.header().metanodes as usize / 16;
     assert!(holders > f.header().root_metanodes as usize + 8);
     // Every prefetch policy: they reference different blocks, the pool's rules are the same.
     for prefetch in [Prefetch::Paper, Prefetch::Parent, Prefetch::Frontier] {
-        let store = ExtStore::with_holders(f.clone(), holders).unwrap();
-        let mut nav = Navigator::new(&f, store, NavOptions { check_foldover: true, prefetch }).unwrap();
+        let bytes = (holders as u64 + 1) * f.header().holder_bytes;
+        let pooled = relief::format::metanode::MetaNodeFile::open_with(f.path(), Access::Pool { bytes }).unwrap();
+        let pool = pooled.pager().pool().unwrap();
+        let mut nav =
+            Navigator::new(&pooled, PagedStore::new(&pooled), NavOptions { check_foldover: true, prefetch }).unwrap();
         let (mut misses, mut adapts) = (0, 0);
         for (k, (cam, tol)) in random_cameras(&f, 200, 11).iter().enumerate() {
             let s = nav.update(cam, *tol).unwrap();
             misses += s.misses;
             adapts += s.splits + s.collapses;
             nav.check().unwrap_or_else(|e| panic!("{prefetch:?}, view {k}: {e}"));
-            nav.store().pool().check_invariants().unwrap_or_else(|e| panic!("{prefetch:?}, view {k}: {e}"));
+            pool.check_invariants().unwrap_or_else(|e| panic!("{prefetch:?}, view {k}: {e}"));
             if k % 4 == 0 {
-                nav.store().pool().drain().unwrap();
+                pool.drain().unwrap();
             }
         }
-        let stats = nav.store().pool().stats();
+        let stats = pool.stats();
         assert!(misses > 0 && adapts > 0, "{prefetch:?}: {misses} misses, {adapts} adapts");
         assert!(stats.evictions > 0 && stats.second_chance_hits > 0, "{prefetch:?}: {stats:?}");
         assert_eq!(nav.store().second_chance_hits(), stats.second_chance_hits);

@@ -12,12 +12,13 @@ use std::path::Path;
 use glam::DVec3;
 use relief::camera::{Camera, UpAxis};
 use relief::flight::{flyover_box, FlyoverOptions};
+use relief::format::pages::{PageFile, PageLayout};
 use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::mesh::{read_mesh, terrain_mesh, Mesh};
 use relief::mesh_fly::MeshFrameSource;
+use relief::pages::build::{build_page_file, PageBuildOptions};
 use relief::pages::fetch::{FetchOptions, PageSource};
-use relief::pages::file::{build_page_file, PageBuildOptions, PageFile, PageLayout};
 use relief::pages::kdtree::{box_in_frustum, query_frustum};
 use relief::preprocess::convert::{convert, ConvertOptions};
 
@@ -34,10 +35,11 @@ fn input_triangles(mesh: &Mesh) -> Vec<Corners> {
 /// Every page read back whole (pread) and decoded; asserts each page agrees with the map and its
 /// directory box holds its vertices.
 fn decoded_triangles(f: &PageFile) -> Vec<Corners> {
-    let (mut buf, mut out, mut all) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut out, mut all) = (Vec::new(), Vec::new());
+    let read = PageFile::open_with(f.path(), relief::pager::Access::Read).unwrap();
     for p in 0..f.header().pages as u32 {
-        f.read_pages(p, 1, &mut buf).unwrap();
-        assert_eq!(&buf[..], f.mapped_page(p));
+        let buf = read.page(p).unwrap();
+        assert_eq!(&*buf, &*f.page(p).unwrap());
         let view = f.decode(p, &buf).unwrap();
         let e = &f.directory()[p as usize];
         for i in 0..view.vertices() {
@@ -125,10 +127,9 @@ fn the_fetch_finds_every_page_a_view_sees() {
         build_page_file(&mesh, &out, &PageBuildOptions::new(4096, layout)).unwrap();
         let f = PageFile::open(&out).unwrap();
         // Every vertex of every page, to test pages against the exact frustum.
-        let mut buf = Vec::new();
         let vertices: Vec<Vec<DVec3>> = (0..f.header().pages as u32)
             .map(|p| {
-                f.read_pages(p, 1, &mut buf).unwrap();
+                let buf = f.page(p).unwrap();
                 let v = f.decode(p, &buf).unwrap();
                 (0..v.vertices()).map(|i| DVec3::from(v.position(i).map(f64::from))).collect()
             })

@@ -65,9 +65,9 @@ fn triangle_count_never_grows_with_tolerance_and_culling_only_removes() {
         let mut previous: Option<(u64, Vec<(u32, u32)>)> = None;
         for tolerance_px in [0.25, 0.5, 1.0, 1.5, 2.0, 4.0, 8.0, 32.0] {
             let mut o = RefineOptions { tolerance_px, metric, cull: true, morph_ratio: None };
-            refiner.refine_file(file, &camera, &o, &mut culled);
+            refiner.refine_file(file, &camera, &o, &mut culled).unwrap();
             o.cull = false;
-            refiner.refine_file(file, &camera, &o, &mut full);
+            refiner.refine_file(file, &camera, &o, &mut full).unwrap();
             let (tc, _) = culled.triangle_counts();
             let (tf, _) = full.triangle_counts();
             // Culling never adds triangles or vertices, and never opens a crack.
@@ -130,9 +130,9 @@ fn threaded_refinement_gives_the_single_threaded_mesh() {
         if k % 3 == 0 {
             options.morph_ratio = Some(2.0);
         }
-        let ca = single.refine_file(file, &camera, &options, &mut a);
+        let ca = single.refine_file(file, &camera, &options, &mut a).unwrap();
         let pool = &mut pools[k % 3];
-        let cb = pool.refine_file(file, &camera, &options, &mut b);
+        let cb = pool.refine_file(file, &camera, &options, &mut b).unwrap();
         assert_eq!(ca, cb, "camera {k}: same vertices visited and culled");
         assert_eq!(mesh(&a), mesh(&b), "camera {k} with {} threads", pool.threads());
         let c = check(file, &camera, &options, &a);
@@ -163,8 +163,8 @@ fn geomorphing_blends_new_vertices_in_from_their_edge_midpoints() {
         let camera = random_camera(&mut rng, file);
         let options =
             RefineOptions { tolerance_px: 1.0, metric: MetricKind::Isotropic, cull: false, morph_ratio: Some(3.0) };
-        refiner.refine_file(file, &camera, &options, &mut before);
-        refiner.refine_file(file, &camera, &RefineOptions { morph_ratio: None, ..options }, &mut plain);
+        refiner.refine_file(file, &camera, &options, &mut before).unwrap();
+        refiner.refine_file(file, &camera, &RefineOptions { morph_ratio: None, ..options }, &mut plain).unwrap();
         assert_eq!(before.vertices, plain.vertices, "geomorphing does not change the mesh");
         assert!(plain.morph.is_empty());
         assert_eq!(before.morph.len(), before.vertices.len());
@@ -178,7 +178,7 @@ fn geomorphing_blends_new_vertices_in_from_their_edge_midpoints() {
         // Corners are never morphed.
         for (x, y) in file.grid().corners() {
             if let Some(m) = seen.get(&StripVertex { x, y }) {
-                assert_eq!((m.blend, m.z_m), (1.0, file.record_at(x, y).z));
+                assert_eq!((m.blend, m.z_m), (1.0, file.record_at(x, y).unwrap().z));
             }
         }
         // Move the eye a little towards the look point. A vertex that appears starts at the
@@ -188,7 +188,7 @@ fn geomorphing_blends_new_vertices_in_from_their_edge_midpoints() {
         let step = (camera.look_at_world - camera.eye_in_world) * 1e-4;
         let moved =
             Camera { eye_in_world: camera.eye_in_world + step, look_at_world: camera.look_at_world + step, ..camera };
-        refiner.refine_file(file, &moved, &options, &mut after);
+        refiner.refine_file(file, &moved, &options, &mut after).unwrap();
         let old = vertex_set(&before);
         let morphed: std::collections::HashMap<_, _> = after.vertices.iter().zip(&after.morph).collect();
         let kappa_1px = moved.kappa(1.0);

@@ -90,12 +90,10 @@ fn gpu_shading_matches_the_cpu_reference_across_tiles() {
     let t = terrain("zurich_25m_i16.tif");
     let cam = camera([2000.0, -1500.0, 1500.0], [5000.0, 4500.0, 500.0], 256, 160);
     let mut strip = Strip::new();
-    Refiner::new(1).unwrap().refine_file(
-        &t,
-        &cam,
-        &RefineOptions { tolerance_px: 2.0, ..Default::default() },
-        &mut strip,
-    );
+    Refiner::new(1)
+        .unwrap()
+        .refine_file(&t, &cam, &RefineOptions { tolerance_px: 2.0, ..Default::default() }, &mut strip)
+        .unwrap();
     let probe = |tile_posts: Option<u32>, what: Probe| {
         let mut r = TerrainRenderer::new(
             &gpu,
@@ -131,7 +129,7 @@ fn gpu_shading_matches_the_cpu_reference_across_tiles() {
     let h = t.header();
     let params = ShadeParams::for_terrain(h.spacing_m, t.grid().size(), h.z_min, h.z_max);
     let last = t.grid().max_coord() as i32;
-    let height = |x: i32, y: i32| t.record_at(x.clamp(0, last) as u32, y.clamp(0, last) as u32).z as f64;
+    let height = |x: i32, y: i32| t.record_at(x.clamp(0, last) as u32, y.clamp(0, last) as u32).unwrap().z as f64;
     let (mut covered, mut worst_h, mut worst_n, mut worst_c) = (0, 0f64, 0f64, 0f64);
     for k in 0..pos.len() {
         if normal[k][3] != 1.0 {

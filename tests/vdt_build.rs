@@ -509,29 +509,32 @@ fn corrupt_vdt_files_are_one_line_errors() {
     let p = path.display();
     let mut bad = good.clone();
     bad[1] = b'X';
-    assert_eq!(open_err(&bad), format!("{p}: not a VDT file (bad magic)"));
-    assert_eq!(open_err(b""), format!("{p}: not a VDT file (bad magic)"));
-    assert_eq!(open_err(&good[..100]), format!("{p}: truncated: expected 128 bytes, found 100"));
+    assert_eq!(open_err(&bad), format!("{p}: not a relief VDT file (bad magic)"));
+    assert_eq!(open_err(b""), format!("{p}: not a relief VDT file (bad magic)"));
+    assert_eq!(open_err(&good[..100]), format!("{p}: truncated VDT file: expected 256 bytes, found 100"));
     assert_eq!(
         open_err(&good[..good.len() - 5]),
-        format!("{p}: truncated: expected {} bytes, found {}", good.len(), good.len() - 5)
+        format!("{p}: truncated VDT file: expected {} bytes, found {}", good.len(), good.len() - 5)
     );
     let mut longer = good.clone();
     longer.extend_from_slice(&[0; 7]);
     assert_eq!(
         open_err(&longer),
-        format!("{p}: 7 bytes after the triangle section (expected {} bytes in all)", good.len())
+        format!("{p}: VDT file has 7 bytes past its end (expected {} bytes, found {})", good.len(), good.len() + 7)
     );
     let mut bad = good.clone();
     bad[8] = 9;
-    assert_eq!(open_err(&bad), format!("{p}: VDT version 9 is not supported (this build reads version 1)"));
+    assert_eq!(open_err(&bad), format!("{p}: VDT file version 9 is not supported (this build reads version 2)"));
+    let mut bad = good.clone();
+    bad[30] ^= 1;
+    assert!(open_err(&bad).starts_with(&format!("{p}: VDT file: header checksum mismatch (stored ")));
     // The first internal node's first child pointing at itself.
     let leaves = u64::from_le_bytes(good[16..24].try_into().unwrap()) as usize;
     let mut bad = good.clone();
-    let at = 128 + leaves * 48 + 20;
+    let at = 256 + leaves * 48 + 20;
     bad[at..at + 4].copy_from_slice(&(leaves as u32).to_le_bytes());
     let msg = open_err(&bad);
-    assert!(msg.starts_with(&format!("{p}: node {leaves}: ")), "{msg}");
+    assert!(msg.starts_with(&format!("{p}: corrupt VDT file: node {leaves}: ")), "{msg}");
     let missing = dir.path().join("missing.vdt");
     assert_eq!(
         VdtFile::open(&missing).err().expect("an error").to_string(),

@@ -8,30 +8,26 @@ mod common;
 
 fuzz_target!(|data: &[u8]| {
     let (_dir, path) = common::input_file("in.rmn", &common::with_header_checksum(data));
-    if let Ok(f) = relief::metanode::blocking::MetaNodeFile::open(&path) {
+    if let Ok(f) = relief::format::metanode::MetaNodeFile::open(&path) {
         let _ = (f.base_triangles().len(), f.tree_bytes());
-        let mut buf = Vec::new();
+        let read = relief::format::metanode::MetaNodeFile::open_with(&path, relief::pager::Access::Read).ok();
         for m in 0..f.mnt().len().min(1 << 12) as u32 {
             let _ = f.block_pages(m);
-            // Both ways navigation reads a block: pread (Ext) and the map (Virt).
-            if f.read_block(m, &mut buf).is_ok() {
-                let bytes: &[u8] = words_as_bytes(&buf);
-                walk(relief::metanode::navigate::parse_block(&f, m, bytes));
+            // Both ways navigation reads a block: pread (Ext, pool) and the map (Virt).
+            if let Some(Ok(block)) = read.as_ref().map(|r| r.block(m)) {
+                walk(relief::format::metanode::parse_block(&f, m, &block));
             }
-            walk(relief::metanode::navigate::parse_block(&f, m, f.mapped_block(m)));
+            if let Ok(block) = f.block(m) {
+                walk(relief::format::metanode::parse_block(&f, m, &block));
+            }
         }
     }
 });
 
-fn walk(view: relief::Result<relief::metanode::blocking::BlockView<'_>>) {
+fn walk(view: relief::Result<relief::format::metanode::BlockView<'_>>) {
     if let Ok(v) = view {
         for node in v.nodes {
             let _ = (v.position(node), v.triangles_of(node).len());
         }
     }
-}
-
-fn words_as_bytes(words: &[u32]) -> &[u8] {
-    // SAFETY: u32 has no padding and u8 has alignment 1; the length is in bytes.
-    unsafe { std::slice::from_raw_parts(words.as_ptr().cast(), words.len() * 4) }
 }

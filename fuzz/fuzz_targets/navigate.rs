@@ -1,15 +1,14 @@
 //! Navigation over a meta-node file: what `relief mesh fly` does with the body of the file once
 //! the header and table are validated. Opens it, starts a navigator over the map (Virt) and over
-//! the buffer pool (Ext), and adapts each to three views of the header's bounding box (far,
+//! the buffer pool (Ext), both through the file's pager, and adapts each to three views of the header's bounding box (far,
 //! close, inside): splits and collapses follow the blocks' cross-block links. The header
 //! checksum is stamped on the input first (see `common::with_header_checksum`).
 #![no_main]
-use std::sync::Arc;
-
 use glam::DVec3;
 use libfuzzer_sys::fuzz_target;
-use relief::metanode::blocking::MetaNodeFile;
-use relief::metanode::navigate::{ExtStore, MetaStore, NavOptions, Navigator, VirtStore};
+use relief::format::metanode::MetaNodeFile;
+use relief::metanode::navigate::{MetaStore, NavOptions, Navigator, PagedStore};
+use relief::pager::Access;
 
 #[path = "common.rs"]
 mod common;
@@ -17,14 +16,14 @@ mod common;
 fuzz_target!(|data: &[u8]| {
     let (_dir, path) = common::input_file("in.rmn", &common::with_header_checksum(data));
     let Ok(f) = MetaNodeFile::open(&path) else { return };
-    let f = Arc::new(f);
     let cameras = cameras(&f);
     let options = NavOptions { check_foldover: true, ..NavOptions::default() };
-    if let Ok(nav) = Navigator::new(&f, VirtStore::new(&f), options) {
+    if let Ok(nav) = Navigator::new(&f, PagedStore::new(&f), options) {
         fly(nav, &cameras);
     }
-    if let Ok(store) = ExtStore::with_holders(f.clone(), f.mnt().len().min(64) + 4) {
-        if let Ok(nav) = Navigator::new(&f, store, options) {
+    let bytes = (f.mnt().len().min(64) as u64 + 5) * f.header().holder_bytes;
+    if let Ok(pooled) = MetaNodeFile::open_with(&path, Access::Pool { bytes }) {
+        if let Ok(nav) = Navigator::new(&pooled, PagedStore::new(&pooled), options) {
             fly(nav, &cameras);
         }
     }

@@ -8,19 +8,21 @@ use libfuzzer_sys::fuzz_target;
 #[path = "common.rs"]
 mod common;
 
-use relief::mesh_fly::MeshFrameSource;
+use relief::flight::frame::MeshFrameSource;
 use relief::pages::fetch::{FetchOptions, PageSource};
-use relief::pages::file::PageFile;
+use relief::format::pages::PageFile;
 
 fuzz_target!(|data: &[u8]| {
     let (_dir, path) = common::input_file("in.rpg", &stamp(data));
     let Ok(f) = PageFile::open(&path) else { return };
-    let mut buf = Vec::new();
+    let read = PageFile::open_with(&path, relief::pager::Access::Read).ok();
     for p in 0..f.header().pages.min(1 << 12) as u32 {
-        if f.read_pages(p, 1, &mut buf).is_ok() {
-            walk(f.decode(p, &buf));
+        if let Some(Ok(page)) = read.as_ref().map(|r| r.page(p)) {
+            walk(f.decode(p, &page));
         }
-        walk(f.decode(p, f.mapped_page(p)));
+        if let Ok(page) = f.page(p) {
+            walk(f.decode(p, &page));
+        }
     }
     let b = f.header().bounds;
     let centre = b.centre();
@@ -34,7 +36,7 @@ fuzz_target!(|data: &[u8]| {
     }
 });
 
-fn walk(view: relief::Result<relief::pages::file::PageView<'_>>) {
+fn walk(view: relief::Result<relief::format::pages::PageView<'_>>) {
     if let Ok(v) = view {
         let mut out = Vec::new();
         v.append_triangles(&mut out);

@@ -20,16 +20,13 @@ pub enum Error {
     Unsupported { path: PathBuf, what: String },
     #[error("{}: no valid sample (every sample is nodata, void or NaN)", path.display())]
     NoValidSamples { path: PathBuf },
-    #[error("{}: not a relief terrain file (bad magic)", path.display())]
-    BadMagic { path: PathBuf },
-    #[error("{}: terrain file version {found} is not supported (this build reads version {supported})", path.display())]
-    BadVersion { path: PathBuf, found: u32, supported: u32 },
-    #[error("{}: corrupt header: {problem}", path.display())]
-    BadHeader { path: PathBuf, problem: String },
+    /// A relief file (terrain, VDT, meta-node or page file) that is not one, is of another version,
+    /// is truncated, fails a checksum or holds inconsistent data (`format`).
+    #[error("{}: {}", path.display(), problem.describe(*kind))]
+    File { path: PathBuf, kind: crate::format::FileKind, problem: crate::format::Problem },
+    /// A read past the end of a file (it is shorter than what was asked of it).
     #[error("{}: truncated: expected {expected} bytes, found {found}", path.display())]
     Truncated { path: PathBuf, expected: u64, found: u64 },
-    #[error("{}: {which} checksum mismatch (stored {stored:016x}, computed {computed:016x})", path.display())]
-    Checksum { path: PathBuf, which: &'static str, stored: u64, computed: u64 },
     #[error("{}: grid too large: {width} x {height} needs more than 2^{max_n} + 1 posts per side", path.display())]
     GridTooLarge { path: PathBuf, width: u64, height: u64, max_n: u32 },
     /// A grid whose terrain file or conversion scratch cannot be mapped (`mapped::MAX_MAPPED_BYTES`).
@@ -41,18 +38,12 @@ pub enum Error {
     /// A mesh file (`mesh::read_mesh`) that could not be parsed or holds unusable data.
     #[error("{}: {problem}", path.display())]
     BadMesh { path: PathBuf, problem: String },
-    /// A VDT file (`vdtree::vdt`) that is not one, or whose content is inconsistent.
-    #[error("{}: {problem}", path.display())]
-    BadVdt { path: PathBuf, problem: String },
     /// A memory budget too small for the step that needs it (`vdtree::build`).
     #[error("memory budget of {budget_bytes} bytes is too small: {problem}")]
     MemoryBudget { budget_bytes: u64, problem: String },
     /// Scratch storage (the redb database of `vdtree::build`) failed.
     #[error("{}: scratch database: {problem}", path.display())]
     Scratch { path: PathBuf, problem: String },
-    /// A page file (`pages::file`) that is not one, or whose content is inconsistent.
-    #[error("{}: {problem}", path.display())]
-    BadPages { path: PathBuf, problem: String },
     /// A page layout (`pages::two_factor`) that could not be computed.
     #[error("page layout: {0}")]
     Layout(String),
@@ -100,11 +91,6 @@ impl Error {
     /// A mesh file whose content is wrong.
     pub fn bad_mesh(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
         Error::BadMesh { path: path.into(), problem: problem.into() }
-    }
-
-    /// A page file whose content is wrong.
-    pub fn bad_pages(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
-        Error::BadPages { path: path.into(), problem: problem.into() }
     }
 
     /// A flight-path file whose content is wrong.

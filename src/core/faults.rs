@@ -16,7 +16,7 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::format::terrain::{TerrainFile, RECORD_BYTES};
 use crate::layout::LayoutKind;
-use crate::pager::{drop_from_page_cache, LruCache, LruTrace, MemoryCap, PageGeometry, PagedRecords, RecordSet};
+use crate::pager::{drop_from_page_cache, Granules, LruCache, LruTrace, MemoryCap, PageGeometry};
 use crate::preprocess::convert::{convert, relayout, ConvertOptions};
 use crate::refine::{RefineOptions, Refiner, Strip};
 use crate::sys::mem;
@@ -126,9 +126,9 @@ pub fn run_model(
     memory_bytes: u64,
     geometry: PageGeometry,
 ) -> Result<LayoutRun> {
-    let trace = LruTrace::new(LruCache::new(memory_bytes, geometry)?);
-    let read = RecordSet::new(terrain.records().len());
-    let records = PagedRecords::new(terrain.records(), terrain.header().payload_offset, geometry, &trace, Some(&read));
+    let h = terrain.header();
+    let granules = Granules { first: h.payload_offset, bytes: RECORD_BYTES as u64, count: h.records };
+    let trace = LruTrace::with_granules(LruCache::new(memory_bytes, geometry)?, geometry, granules);
     let options = RefineOptions { tolerance_px, ..Default::default() };
     let mut refiner = Refiner::new(1)?;
     let mut strip = Strip::new();
@@ -136,15 +136,14 @@ pub fn run_model(
     let mut refine_s = 0.0;
     for camera in cameras {
         crate::sys::cancel::check()?;
-        let before = trace.stats().misses;
         let t0 = Instant::now();
-        refiner.refine_source(terrain, &records, camera, &options, &mut strip);
+        refiner.refine_observed(terrain, &trace, camera, &options, &mut strip)?;
         refine_s += t0.elapsed().as_secs_f64();
-        per_frame.push(trace.stats().misses - before);
+        per_frame.push(crate::pager::PageObserver::take(&trace).faults);
     }
     let stats = trace.stats();
-    let records_read = read.len();
-    let lower_bound = geometry.pages_for(records_read * RECORD_BYTES as u64);
+    let records_read = trace.distinct_bytes() / RECORD_BYTES as u64;
+    let lower_bound = trace.lower_bound_pages();
     let frames = cameras.len().max(1) as f64;
     Ok(LayoutRun {
         layout: terrain.header().layout.name().into(),
@@ -179,7 +178,7 @@ pub fn run_os(path: &Path, cameras: &[Camera], tolerance_px: f64) -> Result<OsFa
     let mut last = major0;
     for camera in cameras {
         crate::sys::cancel::check()?;
-        refiner.refine_file(&terrain, camera, &options, &mut strip);
+        refiner.refine_file(&terrain, camera, &options, &mut strip)?;
         let (major, _) = mem::page_faults();
         per_frame.push(major - last);
         last = major;

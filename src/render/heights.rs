@@ -7,7 +7,7 @@
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::format::terrain::TerrainFile;
+use crate::format::terrain::{Record, TerrainFile};
 use crate::layout::{Layout, LayoutVisitor};
 use crate::sys::progress::Progress;
 
@@ -76,9 +76,9 @@ impl HeightTiling {
 
 /// Fills one tile (row-major, `tile_posts²` heights, padding beyond the grid replicated from the
 /// border so filtering-free reads never see garbage).
-pub fn fill_tile(terrain: &TerrainFile, tiling: &HeightTiling, layer: u32, out: &mut [f32]) {
+pub fn fill_tile(records: &[Record], terrain: &TerrainFile, tiling: &HeightTiling, layer: u32, out: &mut [f32]) {
     struct Fill<'a> {
-        terrain: &'a TerrainFile,
+        records: &'a [Record],
         tiling: &'a HeightTiling,
         layer: u32,
         out: &'a mut [f32],
@@ -90,7 +90,7 @@ pub fn fill_tile(terrain: &TerrainFile, tiling: &HeightTiling, layer: u32, out: 
             let x0 = (self.layer % self.tiling.tiles_per_row) * t;
             let y0 = (self.layer / self.tiling.tiles_per_row) * t;
             let last = self.tiling.posts - 1;
-            let records = self.terrain.records();
+            let records = self.records;
             self.out.par_chunks_mut(t as usize).enumerate().for_each(|(row, dst)| {
                 let y = (y0 + row as u32).min(last);
                 for (col, h) in dst.iter_mut().enumerate() {
@@ -100,7 +100,7 @@ pub fn fill_tile(terrain: &TerrainFile, tiling: &HeightTiling, layer: u32, out: 
             });
         }
     }
-    terrain.layout().visit(Fill { terrain, tiling, layer, out });
+    terrain.layout().visit(Fill { records, tiling, layer, out });
 }
 
 /// The heights texture array and its tiling.
@@ -119,7 +119,9 @@ impl GpuHeights {
         terrain: &TerrainFile,
         tiling: HeightTiling,
         progress: Progress,
-    ) -> GpuHeights {
+    ) -> Result<GpuHeights> {
+        // Every height goes to the GPU: the mapped records, or the file read whole.
+        let records = terrain.records()?;
         let t = tiling.tile_posts;
         let texture = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("relief heights"),
@@ -134,7 +136,7 @@ impl GpuHeights {
         let bar = progress.bar("upload", tiling.posts as u64 * tiling.posts as u64, "posts");
         let mut tile = vec![0f32; t as usize * t as usize];
         for layer in 0..tiling.layers() {
-            fill_tile(terrain, &tiling, layer, &mut tile);
+            fill_tile(&records, terrain, &tiling, layer, &mut tile);
             queue.write_texture(
                 wgpu::TexelCopyTextureInfo {
                     texture: &texture,
@@ -158,7 +160,7 @@ impl GpuHeights {
             dimension: Some(wgpu::TextureViewDimension::D2Array),
             ..Default::default()
         });
-        GpuHeights { tiling, texture, view }
+        Ok(GpuHeights { tiling, texture, view })
     }
 }
 

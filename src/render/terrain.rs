@@ -173,7 +173,7 @@ impl TerrainRenderer {
             }
             None => HeightTiling::plan(posts, limits.max_texture_dimension_2d, limits.max_texture_array_layers)?,
         };
-        let heights = GpuHeights::upload(device, &gpu.queue, terrain, tiling, progress);
+        let heights = GpuHeights::upload(device, &gpu.queue, terrain, tiling, progress)?;
         let h = terrain.header();
         let shade = ShadeParams::for_terrain(h.spacing_m, posts, h.z_min, h.z_max);
 
@@ -532,7 +532,7 @@ pub fn near_plane_m(terrain: &TerrainFile, eye_in_world: DVec3) -> f64 {
         let (x0, y0) = ((ex.floor() as u32).min(last - 1), (ey.floor() as u32).min(last - 1));
         let ground = [(0, 0), (1, 0), (0, 1), (1, 1)]
             .iter()
-            .map(|&(dx, dy)| terrain.record_at(x0 + dx, y0 + dy).z as f64)
+            .map(|&(dx, dy)| terrain.record_at(x0 + dx, y0 + dy).map_or(h.z_max, |r| r.z as f64))
             .fold(f64::MIN, f64::max);
         (eye_in_world.z - ground).max(above_all)
     } else {

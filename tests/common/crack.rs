@@ -122,7 +122,7 @@ pub fn crack_free_everywhere(files: &[TerrainFile], cameras: usize, seed: u64, m
         let camera = random_camera(&mut rng, &files[0]);
         let options = random_options(&mut rng);
         for (f, s) in files.iter().zip(strips.iter_mut()) {
-            refiner.refine_file(f, &camera, &options, s);
+            refiner.refine_file(f, &camera, &options, s).unwrap();
         }
         for (f, s) in files.iter().zip(&strips).skip(1) {
             assert_eq!(

@@ -204,13 +204,15 @@ impl FlightPath {
     }
 
     /// Frame count, length and least clearance above `terrain` (see [`PathSummary`]).
-    pub fn summary(&self, terrain: &TerrainFile) -> PathSummary {
-        let min_clearance_m = self
-            .frames
-            .iter()
-            .filter_map(|f| ground_max_m(terrain, f.eye[0], f.eye[1]).map(|g| f.eye[2] - g))
-            .reduce(f64::min);
-        PathSummary { frames: self.frames.len(), length_m: self.length_m(), min_clearance_m }
+    pub fn summary(&self, terrain: &TerrainFile) -> Result<PathSummary> {
+        let mut min_clearance_m: Option<f64> = None;
+        for f in &self.frames {
+            if let Some(g) = ground_max_m(terrain, f.eye[0], f.eye[1])? {
+                let c = f.eye[2] - g;
+                min_clearance_m = Some(min_clearance_m.map_or(c, |m| m.min(c)));
+            }
+        }
+        Ok(PathSummary { frames: self.frames.len(), length_m: self.length_m(), min_clearance_m })
     }
 }
 
@@ -299,16 +301,24 @@ fn posts_around(terrain: &TerrainFile, x_m: f64, y_m: f64) -> Option<[(u32, u32,
 /// The highest of the (up to four) posts around world point `(x_m, y_m)`, metres, or `None`
 /// outside the grid. Every triangulation of the grid cell lies at or below it, whatever the
 /// refinement, so an eye above it is above the terrain drawn there.
-pub fn ground_max_m(terrain: &TerrainFile, x_m: f64, y_m: f64) -> Option<f64> {
-    let posts = posts_around(terrain, x_m, y_m)?;
-    Some(posts.iter().map(|&(x, y, _)| f64::from(terrain.record_at(x, y).z)).fold(f64::NEG_INFINITY, f64::max))
+pub fn ground_max_m(terrain: &TerrainFile, x_m: f64, y_m: f64) -> Result<Option<f64>> {
+    let Some(posts) = posts_around(terrain, x_m, y_m) else { return Ok(None) };
+    let mut best = f64::NEG_INFINITY;
+    for (x, y, _) in posts {
+        best = best.max(f64::from(terrain.record_at(x, y)?.z));
+    }
+    Ok(Some(best))
 }
 
 /// Bilinear height of the posts around world point `(x_m, y_m)`, metres, or `None` outside the
 /// grid.
-pub fn ground_bilinear_m(terrain: &TerrainFile, x_m: f64, y_m: f64) -> Option<f64> {
-    let posts = posts_around(terrain, x_m, y_m)?;
-    Some(posts.iter().map(|&(x, y, w)| w * f64::from(terrain.record_at(x, y).z)).sum())
+pub fn ground_bilinear_m(terrain: &TerrainFile, x_m: f64, y_m: f64) -> Result<Option<f64>> {
+    let Some(posts) = posts_around(terrain, x_m, y_m) else { return Ok(None) };
+    let mut sum = 0.0;
+    for (x, y, w) in posts {
+        sum += w * f64::from(terrain.record_at(x, y)?.z);
+    }
+    Ok(Some(sum))
 }
 
 /// The highest terrain within `radius_m` of a point, from a lattice of at most
@@ -328,7 +338,7 @@ impl<'a> DiskMax<'a> {
         DiskMax { terrain, radius_m, stride: [stride(sx), stride(sy)] }
     }
 
-    fn max_m(&self, p: DVec2) -> f64 {
+    fn max_m(&self, p: DVec2) -> Result<f64> {
         let h = self.terrain.header();
         let [sx, sy] = h.spacing_m;
         let [x0, y0, x1, y1] = h.valid_window.map(i64::from);
@@ -343,7 +353,7 @@ impl<'a> DiskMax<'a> {
         };
         let (ix0, ix1) = range(p.x, sx, kx, x0, x1);
         let (iy0, iy1) = range(p.y, sy, ky, y0, y1);
-        let mut best = ground_max_m(self.terrain, p.x, p.y).unwrap_or(f64::NEG_INFINITY);
+        let mut best = ground_max_m(self.terrain, p.x, p.y)?.unwrap_or(f64::NEG_INFINITY);
         for iy in iy0..=iy1 {
             let y = iy * ky;
             let dy = y as f64 * sy - p.y;
@@ -351,11 +361,11 @@ impl<'a> DiskMax<'a> {
                 let x = ix * kx;
                 let dx = x as f64 * sx - p.x;
                 if dx * dx + dy * dy <= r * r {
-                    best = best.max(f64::from(self.terrain.record_at(x as u32, y as u32).z));
+                    best = best.max(f64::from(self.terrain.record_at(x as u32, y as u32)?.z));
                 }
             }
         }
-        best
+        Ok(best)
     }
 }
 
@@ -445,7 +455,7 @@ pub fn flyover(terrain: &TerrainFile, opts: &FlyoverOptions) -> Result<FlightPat
 
     let radius_m = FLYOVER_RADIUS_OF_DIAGONAL * diagonal_m;
     let disk = DiskMax::new(terrain, radius_m);
-    let raw: Vec<f64> = xy.iter().map(|&p| disk.max_m(p) + clearance_m).collect();
+    let raw = xy.iter().map(|&p| Ok(disk.max_m(p)? + clearance_m)).collect::<Result<Vec<f64>>>()?;
     let step_m = if n > 1 { (end - start).length() / (n - 1) as f64 } else { 0.0 };
     let half_window = if step_m > 0.0 { ((radius_m / step_m).ceil() as usize).min(n) } else { 0 };
     let smooth = moving_average(&running_max(&raw, half_window), half_window);
@@ -511,13 +521,13 @@ pub fn orbit(terrain: &TerrainFile, opts: &OrbitOptions) -> Result<FlightPath> {
     let centre = window.centre();
     // The centre lies inside the grid, so there is always a height there; z_min is a fallback
     // that cannot be reached.
-    let look_z = ground_bilinear_m(terrain, centre.x, centre.y).unwrap_or(terrain.header().z_min);
+    let look_z = ground_bilinear_m(terrain, centre.x, centre.y)?.unwrap_or(terrain.header().z_min);
     let n = opts.frames;
     let mut frames = Vec::with_capacity(n);
     for k in 0..n {
         let angle = std::f64::consts::TAU * k as f64 / n as f64;
         let p = centre + radius_m * DVec2::new(angle.cos(), angle.sin());
-        if let Some(ground) = ground_max_m(terrain, p.x, p.y) {
+        if let Some(ground) = ground_max_m(terrain, p.x, p.y)? {
             if altitude_m <= ground {
                 return Err(Error::InvalidArgument(format!(
                     "orbit altitude {altitude_m} m is not above the terrain ({ground} m) under frame {k}"

@@ -90,15 +90,20 @@ pub struct Refined {
     pub job: RefineJob,
     /// Page faults (major, minor) of the process during this refinement.
     pub faults: (u64, u64),
+    /// A read that failed during the refinement (the strip stops above the records it missed).
+    pub error: Option<crate::Error>,
 }
 
 pub fn refine_once(refiner: &mut Refiner, terrain: &TerrainFile, job: RefineJob, mut strip: Strip) -> Refined {
     let faults0 = mem::page_faults();
     let t0 = Instant::now();
-    let counters = refiner.refine_file(terrain, &job.camera, &job.options, &mut strip);
+    let (counters, error) = match refiner.refine_file(terrain, &job.camera, &job.options, &mut strip) {
+        Ok(c) => (c, None),
+        Err(e) => (RefineCounters::default(), Some(e)),
+    };
     let refine_ms = t0.elapsed().as_secs_f64() * 1e3;
     let faults1 = mem::page_faults();
-    Refined { strip, counters, refine_ms, job, faults: (faults1.0 - faults0.0, faults1.1 - faults0.1) }
+    Refined { strip, counters, refine_ms, job, faults: (faults1.0 - faults0.0, faults1.1 - faults0.1), error }
 }
 
 /// Refinement on its own thread: give it the newest camera with [`Self::request`], collect the

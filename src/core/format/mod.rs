@@ -1,4 +1,348 @@
-//! relief's file formats.
+//! relief's four file formats and the one container they share.
+//!
+//! Every relief file starts with the same 256-byte header block:
+//!
+//! ```text
+//! offset size  field
+//!      0    8  magic: "\x89RELIEF\n" (terrain), "\x89RLFVDT\n" (VDT), "\x89RLFMNT\n" (meta-node),
+//!              "\x89RLFPGS\n" (pages)
+//!      8    4  version of that format
+//!     12  236  the format's own fields (little-endian)
+//!    248    8  header checksum: XXH3-64 of bytes 0..248
+//! ```
+//!
+//! and is opened the same way: the header is read through the file's [`Source`], then magic,
+//! version and checksum are checked here, then the format's [`Format::decode`] checks its fields
+//! against each other and against the file's length. The errors ([`Error::File`]) name the file
+//! and the format. The formats:
+//!
+//! - [`terrain`]: vertex records (height, nested error, bounding radius) in an index layout;
+//! - [`vdt`]: a view-dependence forest (the meta-node build's intermediate file);
+//! - [`metanode`]: meta-node trees blocked into disk pages (DATA + MNT);
+//! - [`pages`]: self-contained disk pages with their directory and k-d tree.
 
+use std::path::Path;
+
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::pager::source::Source;
+
+pub mod metanode;
+pub mod pages;
 pub mod terrain;
 pub mod vdt;
+
+/// Bytes of the header block every relief file starts with.
+pub const HEADER_BYTES: usize = 256;
+/// Where the header checksum sits (it covers the bytes before it).
+const CHECKSUM_AT: usize = 248;
+
+/// The kinds of relief file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FileKind {
+    Terrain,
+    Vdt,
+    MetaNode,
+    Pages,
+}
+
+impl FileKind {
+    pub const ALL: [FileKind; 4] = [FileKind::Terrain, FileKind::Vdt, FileKind::MetaNode, FileKind::Pages];
+
+    /// What messages call it.
+    pub fn name(self) -> &'static str {
+        match self {
+            FileKind::Terrain => "terrain file",
+            FileKind::Vdt => "VDT file",
+            FileKind::MetaNode => "meta-node file",
+            FileKind::Pages => "page file",
+        }
+    }
+
+    /// Its first 8 bytes.
+    pub fn magic(self) -> [u8; 8] {
+        match self {
+            FileKind::Terrain => *b"\x89RELIEF\n",
+            FileKind::Vdt => *b"\x89RLFVDT\n",
+            FileKind::MetaNode => *b"\x89RLFMNT\n",
+            FileKind::Pages => *b"\x89RLFPGS\n",
+        }
+    }
+
+    /// The version this build writes and reads.
+    pub fn version(self) -> u32 {
+        match self {
+            FileKind::Terrain => terrain::VERSION,
+            FileKind::Vdt => vdt::VERSION,
+            FileKind::MetaNode => metanode::VERSION,
+            FileKind::Pages => pages::VERSION,
+        }
+    }
+
+    /// The kind whose magic `bytes` start with.
+    pub fn of_magic(bytes: &[u8]) -> Option<FileKind> {
+        FileKind::ALL.into_iter().find(|k| bytes.len() >= 8 && bytes[..8] == k.magic())
+    }
+}
+
+impl std::fmt::Display for FileKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// What is wrong with a relief file (see [`Error::File`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Problem {
+    /// The first 8 bytes are not the format's magic.
+    BadMagic,
+    /// A version this build does not read.
+    Version { found: u32, supported: u32 },
+    /// The file is shorter (or longer) than its header says it must be.
+    Truncated { expected: u64, found: u64 },
+    /// A stored checksum disagrees with the bytes.
+    Checksum { which: &'static str, stored: u64, computed: u64 },
+    /// A field, a table entry or a block that is inconsistent.
+    Corrupt(String),
+}
+
+impl Problem {
+    /// The problem as said of a file of kind `kind`.
+    pub fn describe(&self, kind: FileKind) -> String {
+        match self {
+            Problem::BadMagic => format!("not a relief {kind} (bad magic)"),
+            Problem::Version { found, supported } => {
+                format!("{kind} version {found} is not supported (this build reads version {supported})")
+            }
+            Problem::Truncated { expected, found } if found < expected => {
+                format!("truncated {kind}: expected {expected} bytes, found {found}")
+            }
+            Problem::Truncated { expected, found } => {
+                format!("{kind} has {} bytes past its end (expected {expected} bytes, found {found})", found - expected)
+            }
+            Problem::Checksum { which, stored, computed } => {
+                format!("{kind}: {which} checksum mismatch (stored {stored:016x}, computed {computed:016x})")
+            }
+            Problem::Corrupt(what) => format!("corrupt {kind}: {what}"),
+        }
+    }
+}
+
+/// The header block of a relief file: 256 bytes, little-endian fields at fixed offsets.
+#[derive(Clone, PartialEq, Eq)]
+pub struct HeaderBytes(pub [u8; HEADER_BYTES]);
+
+impl std::fmt::Debug for HeaderBytes {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "HeaderBytes({:02x?}…)", &self.0[..16])
+    }
+}
+
+impl HeaderBytes {
+    /// A zeroed header with `kind`'s magic and version.
+    pub fn new(kind: FileKind) -> HeaderBytes {
+        let mut h = HeaderBytes([0; HEADER_BYTES]);
+        h.0[..8].copy_from_slice(&kind.magic());
+        h.put_u32(8, kind.version());
+        h
+    }
+
+    pub fn u32(&self, at: usize) -> u32 {
+        u32::from_le_bytes(self.0[at..at + 4].try_into().expect("4 bytes"))
+    }
+    pub fn u64(&self, at: usize) -> u64 {
+        u64::from_le_bytes(self.0[at..at + 8].try_into().expect("8 bytes"))
+    }
+    pub fn f64(&self, at: usize) -> f64 {
+        f64::from_bits(self.u64(at))
+    }
+    pub fn put_u32(&mut self, at: usize, v: u32) {
+        self.0[at..at + 4].copy_from_slice(&v.to_le_bytes());
+    }
+    pub fn put_u64(&mut self, at: usize, v: u64) {
+        self.0[at..at + 8].copy_from_slice(&v.to_le_bytes());
+    }
+    pub fn put_f64(&mut self, at: usize, v: f64) {
+        self.put_u64(at, v.to_bits());
+    }
+
+    /// Three f64 at `at` (a point or one corner of a box).
+    pub fn f64x3(&self, at: usize) -> [f64; 3] {
+        [self.f64(at), self.f64(at + 8), self.f64(at + 16)]
+    }
+    pub fn put_f64x3(&mut self, at: usize, v: [f64; 3]) {
+        for (k, c) in v.into_iter().enumerate() {
+            self.put_f64(at + 8 * k, c);
+        }
+    }
+
+    /// The checksum the bytes before it hash to.
+    pub fn computed_checksum(&self) -> u64 {
+        xxhash_rust::xxh3::xxh3_64(&self.0[..CHECKSUM_AT])
+    }
+
+    /// Stamps the header checksum (after every other field is set).
+    pub fn seal(&mut self) {
+        let sum = self.computed_checksum();
+        self.put_u64(CHECKSUM_AT, sum);
+    }
+
+    /// Checks magic, version and checksum as a file of kind `kind` (in that order, so a file of
+    /// another kind, or another version, is named as such rather than as damaged).
+    pub fn check(&self, kind: FileKind) -> std::result::Result<(), Problem> {
+        if self.0[..8] != kind.magic() {
+            return Err(Problem::BadMagic);
+        }
+        let version = self.u32(8);
+        if version != kind.version() {
+            return Err(Problem::Version { found: version, supported: kind.version() });
+        }
+        let (stored, computed) = (self.u64(CHECKSUM_AT), self.computed_checksum());
+        if stored != computed {
+            return Err(Problem::Checksum { which: "header", stored, computed });
+        }
+        Ok(())
+    }
+}
+
+/// One of relief's file formats: its typed header, read from and written to the header block.
+pub trait Format: Sized {
+    const KIND: FileKind;
+    /// Decodes the format's fields from a header whose magic, version and checksum are checked,
+    /// and checks them against each other and against the file's length.
+    fn decode(h: &HeaderBytes, file_len: u64) -> std::result::Result<Self, Problem>;
+    /// Writes the format's fields (magic, version and checksum are the container's).
+    fn encode_fields(&self, h: &mut HeaderBytes);
+
+    /// The sealed header block.
+    fn encode(&self) -> HeaderBytes {
+        let mut h = HeaderBytes::new(Self::KIND);
+        self.encode_fields(&mut h);
+        h.seal();
+        h
+    }
+}
+
+/// An error about a file of kind `kind` at `path`.
+pub fn file_error(path: &Path, kind: FileKind, problem: Problem) -> Error {
+    Error::File { path: path.to_path_buf(), kind, problem }
+}
+
+/// A [`Problem::Corrupt`] error.
+pub fn corrupt(path: &Path, kind: FileKind, what: impl Into<String>) -> Error {
+    file_error(path, kind, Problem::Corrupt(what.into()))
+}
+
+/// Decodes header bytes as format `F` (the container's checks, then `F`'s).
+pub fn decode_header<F: Format>(path: &Path, bytes: &[u8], file_len: u64) -> Result<F> {
+    let err = |p| file_error(path, F::KIND, p);
+    if bytes.len() < 8 || bytes[..8] != F::KIND.magic() {
+        return Err(err(Problem::BadMagic));
+    }
+    if bytes.len() >= 12 {
+        let version = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
+        if version != F::KIND.version() {
+            return Err(err(Problem::Version { found: version, supported: F::KIND.version() }));
+        }
+    }
+    if bytes.len() < HEADER_BYTES {
+        return Err(err(Problem::Truncated { expected: HEADER_BYTES as u64, found: file_len }));
+    }
+    let h = HeaderBytes(bytes[..HEADER_BYTES].try_into().expect("256 bytes"));
+    h.check(F::KIND).map_err(err)?;
+    F::decode(&h, file_len).map_err(err)
+}
+
+/// Reads and validates `F`'s header from `source`: the one open path of every format.
+pub fn read_header<F: Format>(source: &dyn Source) -> Result<F> {
+    let n = (HEADER_BYTES as u64).min(source.len()) as usize;
+    let mut bytes = vec![0u8; n];
+    source.read_at(0, &mut bytes)?;
+    decode_header(source.path(), &bytes, source.len())
+}
+
+/// The kind of relief file at `path`, from its magic (`None`: not a relief file, e.g. a DEM or a
+/// mesh).
+pub fn sniff(path: &Path) -> Result<Option<FileKind>> {
+    use std::io::Read;
+    let mut head = [0u8; 8];
+    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut n = 0;
+    while n < 8 {
+        match f.read(&mut head[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(Error::io(path, e)),
+        }
+    }
+    Ok(FileKind::of_magic(&head[..n]))
+}
+
+/// A section's end (`offset + count × size`), or a corrupt-file problem when it overflows.
+pub fn section_end(offset: u64, count: u64, size: u64, what: &str) -> std::result::Result<u64, Problem> {
+    count
+        .checked_mul(size)
+        .and_then(|b| b.checked_add(offset))
+        .ok_or_else(|| Problem::Corrupt(format!("the size of {what} overflows")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A format with one field, for the container's own checks.
+    #[derive(Debug, PartialEq)]
+    struct Toy(u64);
+
+    impl Format for Toy {
+        const KIND: FileKind = FileKind::Pages;
+        fn decode(h: &HeaderBytes, file_len: u64) -> std::result::Result<Toy, Problem> {
+            if file_len != 256 {
+                return Err(Problem::Truncated { expected: 256, found: file_len });
+            }
+            match h.u64(16) {
+                0 => Err(Problem::Corrupt("zero".into())),
+                v => Ok(Toy(v)),
+            }
+        }
+        fn encode_fields(&self, h: &mut HeaderBytes) {
+            h.put_u64(16, self.0);
+        }
+    }
+
+    #[test]
+    fn every_kind_has_its_own_magic_and_a_name() {
+        for k in FileKind::ALL {
+            assert_eq!(FileKind::of_magic(&k.magic()), Some(k));
+            assert!(k.name().ends_with(" file"));
+        }
+        assert_eq!(FileKind::of_magic(b"II*\0\x08\0\0\0"), None);
+        assert_eq!(FileKind::of_magic(b"\x89REL"), None);
+    }
+
+    #[test]
+    fn the_container_checks_magic_version_checksum_and_size_in_that_order() {
+        let p = Path::new("t.rpg");
+        let good = Toy(7).encode().0;
+        assert_eq!(decode_header::<Toy>(p, &good, 256).unwrap(), Toy(7));
+        let msg = |b: &[u8], len: u64| decode_header::<Toy>(p, b, len).unwrap_err().to_string();
+        let mut b = good;
+        b[0] = b'X';
+        assert_eq!(msg(&b, 256), "t.rpg: not a relief page file (bad magic)");
+        let mut b = good;
+        b[8] = 9;
+        assert_eq!(msg(&b, 256), "t.rpg: page file version 9 is not supported (this build reads version 1)");
+        let mut b = good;
+        b[20] ^= 1;
+        assert!(msg(&b, 256).starts_with("t.rpg: page file: header checksum mismatch (stored "), "{}", msg(&b, 256));
+        assert_eq!(msg(&good[..100], 100), "t.rpg: truncated page file: expected 256 bytes, found 100");
+        assert_eq!(msg(&good, 200), "t.rpg: truncated page file: expected 256 bytes, found 200");
+        assert_eq!(msg(&good, 300), "t.rpg: page file has 44 bytes past its end (expected 256 bytes, found 300)");
+        assert_eq!(msg(&Toy(0).encode().0, 256), "t.rpg: corrupt page file: zero");
+        // Another kind's file is named by what it is not.
+        assert_eq!(msg(&HeaderBytes::new(FileKind::Terrain).0, 256), "t.rpg: not a relief page file (bad magic)");
+    }
+}

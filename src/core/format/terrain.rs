@@ -33,19 +33,19 @@
 //! Records in unused slots of the index space are all zero bytes. The header checksum is verified
 //! on every open (it is cheap); the payload checksum only on request ([`TerrainFile::verify_payload`]).
 
-use std::fs::File;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
-use memmap2::Mmap;
 
-use crate::error::{Error, IoContext, Result};
+use super::{read_header, FileKind, Format, HeaderBytes, Problem};
+use crate::error::{Error, Result};
 use crate::layout::hierarchy::{Grid, MAX_N};
 use crate::layout::{AnyLayout, Layout, LayoutKind};
+use crate::pager::{source, Access, FixedBlocks, Pager};
 
-pub const MAGIC: [u8; 8] = *b"\x89RELIEF\n";
 pub const VERSION: u32 = 1;
-pub const HEADER_BYTES: usize = 256;
+pub const HEADER_BYTES: usize = super::HEADER_BYTES;
 /// Records start on this boundary (one page), so a record never shares a page with the header.
 pub const PAYLOAD_OFFSET: u64 = 4096;
 pub const RECORD_FORMAT_F32: u32 = 1;
@@ -94,27 +94,6 @@ pub struct Header {
     pub payload_checksum: u64,
 }
 
-pub(crate) fn put_u32(b: &mut [u8], at: usize, v: u32) {
-    b[at..at + 4].copy_from_slice(&v.to_le_bytes());
-}
-pub(crate) fn put_u64(b: &mut [u8], at: usize, v: u64) {
-    b[at..at + 8].copy_from_slice(&v.to_le_bytes());
-}
-pub(crate) fn put_f64(b: &mut [u8], at: usize, v: f64) {
-    b[at..at + 8].copy_from_slice(&v.to_le_bytes());
-}
-pub(crate) fn get_u32(b: &[u8], at: usize) -> u32 {
-    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
-}
-pub(crate) fn get_u64(b: &[u8], at: usize) -> u64 {
-    let mut a = [0u8; 8];
-    a.copy_from_slice(&b[at..at + 8]);
-    u64::from_le_bytes(a)
-}
-pub(crate) fn get_f64(b: &[u8], at: usize) -> f64 {
-    f64::from_bits(get_u64(b, at))
-}
-
 impl Header {
     pub fn grid(&self) -> Grid {
         // Validated at decode time.
@@ -135,99 +114,78 @@ impl Header {
     pub fn layout(&self) -> AnyLayout {
         AnyLayout::new(self.layout, self.grid(), self.layout_param, self.record_bytes).expect("header layout validated")
     }
+}
 
-    /// Encodes the header into its 256 bytes, computing the header checksum.
-    pub fn encode(&self) -> [u8; HEADER_BYTES] {
-        let mut b = [0u8; HEADER_BYTES];
-        b[0..8].copy_from_slice(&MAGIC);
-        put_u32(&mut b, 8, self.version);
-        put_u32(&mut b, 12, HEADER_BYTES as u32);
-        put_u32(&mut b, 16, self.layout as u32);
-        put_u32(&mut b, 20, self.layout_param);
-        put_u32(&mut b, 24, self.record_format);
-        put_u32(&mut b, 28, self.record_bytes);
-        put_u32(&mut b, 32, self.n);
-        put_u32(&mut b, 36, 2 * self.n);
-        put_u32(&mut b, 40, (1u32 << self.n) + 1);
-        put_u32(&mut b, 44, self.flags);
+impl Format for Header {
+    const KIND: FileKind = FileKind::Terrain;
+
+    fn encode_fields(&self, h: &mut HeaderBytes) {
+        h.put_u32(8, self.version);
+        h.put_u32(12, HEADER_BYTES as u32);
+        h.put_u32(16, self.layout as u32);
+        h.put_u32(20, self.layout_param);
+        h.put_u32(24, self.record_format);
+        h.put_u32(28, self.record_bytes);
+        h.put_u32(32, self.n);
+        h.put_u32(36, 2 * self.n);
+        h.put_u32(40, (1u32 << self.n) + 1);
+        h.put_u32(44, self.flags);
         for (k, v) in self.valid_window.iter().enumerate() {
-            put_u32(&mut b, 48 + 4 * k, *v);
+            h.put_u32(48 + 4 * k, *v);
         }
-        put_u32(&mut b, 64, self.source_format);
-        put_u64(&mut b, 72, self.records);
-        put_u64(&mut b, 80, self.vertices());
-        put_u64(&mut b, 88, self.payload_offset);
-        put_u64(&mut b, 96, self.payload_bytes);
-        put_f64(&mut b, 104, self.spacing_m[0]);
-        put_f64(&mut b, 112, self.spacing_m[1]);
-        put_f64(&mut b, 120, self.z_scale);
-        put_f64(&mut b, 128, self.z_offset);
-        put_f64(&mut b, 136, self.z_min);
-        put_f64(&mut b, 144, self.z_max);
-        put_u64(&mut b, 152, self.nodata_filled);
-        put_f64(&mut b, 160, self.source_centre_lat_deg);
-        put_f64(&mut b, 168, self.source_spacing_deg[0]);
-        put_f64(&mut b, 176, self.source_spacing_deg[1]);
-        put_u64(&mut b, 240, self.payload_checksum);
-        let sum = xxhash_rust::xxh3::xxh3_64(&b[..248]);
-        put_u64(&mut b, 248, sum);
-        b
+        h.put_u32(64, self.source_format);
+        h.put_u64(72, self.records);
+        h.put_u64(80, self.vertices());
+        h.put_u64(88, self.payload_offset);
+        h.put_u64(96, self.payload_bytes);
+        h.put_f64(104, self.spacing_m[0]);
+        h.put_f64(112, self.spacing_m[1]);
+        h.put_f64(120, self.z_scale);
+        h.put_f64(128, self.z_offset);
+        h.put_f64(136, self.z_min);
+        h.put_f64(144, self.z_max);
+        h.put_u64(152, self.nodata_filled);
+        h.put_f64(160, self.source_centre_lat_deg);
+        h.put_f64(168, self.source_spacing_deg[0]);
+        h.put_f64(176, self.source_spacing_deg[1]);
+        h.put_u64(240, self.payload_checksum);
     }
 
-    /// Decodes and validates a header: magic, version, checksum, and every field's consistency
-    /// with the others. `file_len` is checked against the payload size.
-    pub fn decode(path: &Path, b: &[u8], file_len: u64) -> Result<Header> {
-        let bad = |problem: String| Error::BadHeader { path: path.to_path_buf(), problem };
-        if b.len() < 8 || b[0..8] != MAGIC {
-            return Err(Error::BadMagic { path: path.to_path_buf() });
+    /// Checks every field's consistency with the others, and `file_len` against the payload.
+    fn decode(b: &HeaderBytes, file_len: u64) -> std::result::Result<Header, Problem> {
+        let bad = |what: String| Problem::Corrupt(format!("header: {what}"));
+        if b.u32(12) as usize != HEADER_BYTES {
+            return Err(bad(format!("header size {} (expected {HEADER_BYTES})", b.u32(12))));
         }
-        if b.len() < 12 {
-            return Err(Error::Truncated { path: path.into(), expected: PAYLOAD_OFFSET, found: file_len });
-        }
-        let version = get_u32(b, 8);
-        if version != VERSION {
-            return Err(Error::BadVersion { path: path.into(), found: version, supported: VERSION });
-        }
-        if b.len() < HEADER_BYTES {
-            return Err(Error::Truncated { path: path.into(), expected: PAYLOAD_OFFSET, found: file_len });
-        }
-        let stored = get_u64(b, 248);
-        let computed = xxhash_rust::xxh3::xxh3_64(&b[..248]);
-        if stored != computed {
-            return Err(Error::Checksum { path: path.into(), which: "header", stored, computed });
-        }
-        if get_u32(b, 12) as usize != HEADER_BYTES {
-            return Err(bad(format!("header size {} (expected {HEADER_BYTES})", get_u32(b, 12))));
-        }
-        let layout = LayoutKind::from_code(get_u32(b, 16))
-            .ok_or_else(|| bad(format!("unknown layout code {}", get_u32(b, 16))))?;
-        let n = get_u32(b, 32);
+        let layout =
+            LayoutKind::from_code(b.u32(16)).ok_or_else(|| bad(format!("unknown layout code {}", b.u32(16))))?;
+        let n = b.u32(32);
         let grid = Grid::new(n).ok_or_else(|| bad(format!("grid exponent n = {n} outside 1..={MAX_N}")))?;
-        if get_u32(b, 36) != 2 * n || get_u32(b, 40) != grid.size() {
-            return Err(bad(format!("levels {} / side {} disagree with n = {n}", get_u32(b, 36), get_u32(b, 40))));
+        if b.u32(36) != 2 * n || b.u32(40) != grid.size() {
+            return Err(bad(format!("levels {} / side {} disagree with n = {n}", b.u32(36), b.u32(40))));
         }
         let h = Header {
-            version,
+            version: b.u32(8),
             layout,
-            layout_param: get_u32(b, 20),
-            record_format: get_u32(b, 24),
-            record_bytes: get_u32(b, 28),
+            layout_param: b.u32(20),
+            record_format: b.u32(24),
+            record_bytes: b.u32(28),
             n,
-            flags: get_u32(b, 44),
-            valid_window: [get_u32(b, 48), get_u32(b, 52), get_u32(b, 56), get_u32(b, 60)],
-            source_format: get_u32(b, 64),
-            records: get_u64(b, 72),
-            payload_offset: get_u64(b, 88),
-            payload_bytes: get_u64(b, 96),
-            spacing_m: [get_f64(b, 104), get_f64(b, 112)],
-            z_scale: get_f64(b, 120),
-            z_offset: get_f64(b, 128),
-            z_min: get_f64(b, 136),
-            z_max: get_f64(b, 144),
-            nodata_filled: get_u64(b, 152),
-            source_centre_lat_deg: get_f64(b, 160),
-            source_spacing_deg: [get_f64(b, 168), get_f64(b, 176)],
-            payload_checksum: get_u64(b, 240),
+            flags: b.u32(44),
+            valid_window: [b.u32(48), b.u32(52), b.u32(56), b.u32(60)],
+            source_format: b.u32(64),
+            records: b.u64(72),
+            payload_offset: b.u64(88),
+            payload_bytes: b.u64(96),
+            spacing_m: [b.f64(104), b.f64(112)],
+            z_scale: b.f64(120),
+            z_offset: b.f64(128),
+            z_min: b.f64(136),
+            z_max: b.f64(144),
+            nodata_filled: b.u64(152),
+            source_centre_lat_deg: b.f64(160),
+            source_spacing_deg: [b.f64(168), b.f64(176)],
+            payload_checksum: b.u64(240),
         };
         if h.record_format != RECORD_FORMAT_F32 || h.record_bytes != RECORD_BYTES {
             return Err(bad(format!("unknown record format {} of {} bytes", h.record_format, h.record_bytes)));
@@ -242,8 +200,8 @@ impl Header {
                 layout.records()
             )));
         }
-        if get_u64(b, 80) != grid.vertices() {
-            return Err(bad(format!("vertex count {} (expected {})", get_u64(b, 80), grid.vertices())));
+        if b.u64(80) != grid.vertices() {
+            return Err(bad(format!("vertex count {} (expected {})", b.u64(80), grid.vertices())));
         }
         if h.payload_offset != PAYLOAD_OFFSET {
             return Err(bad(format!("payload offset {} (expected {PAYLOAD_OFFSET})", h.payload_offset)));
@@ -265,37 +223,46 @@ impl Header {
         }
         let expected = h.payload_offset + h.payload_bytes;
         if file_len != expected {
-            return Err(Error::Truncated { path: path.into(), expected, found: file_len });
+            return Err(Problem::Truncated { expected, found: file_len });
         }
         Ok(h)
     }
 }
 
-/// An open, validated terrain file, mapped read-only.
+/// Records per pager block: 1,024 records are 12 KiB, three 4 KiB pages, so a block holds whole
+/// records and starts on a page.
+pub const RECORDS_PER_BLOCK: u64 = 1024;
+
+/// An open, validated terrain file, read through its [`Pager`].
 pub struct TerrainFile {
     path: PathBuf,
     header: Header,
     layout: AnyLayout,
-    // Keeps the file open for the map's lifetime (and documents what is mapped).
-    _file: File,
-    map: Mmap,
+    pager: Pager,
 }
 
 impl TerrainFile {
-    /// Opens and validates a terrain file: magic, version, header checksum, field consistency and
-    /// the exact file size. The payload checksum is not checked here (see [`Self::verify_payload`]).
+    /// Opens and validates a terrain file, memory-mapped (see [`Self::open_with`]).
     pub fn open(path: &Path) -> Result<TerrainFile> {
-        let file = File::open(path).at(path)?;
-        let file_len = file.metadata().at(path)?.len();
-        let mut head = vec![0u8; (HEADER_BYTES as u64).min(file_len) as usize];
-        {
-            use std::io::Read;
-            (&file).read_exact(&mut head).at(path)?;
-        }
-        let header = Header::decode(path, &head, file_len)?;
-        let map = crate::pager::source::map_read_only(path, &file, file_len)?;
+        TerrainFile::open_with(path, Access::Map)
+    }
+
+    /// Opens and validates a terrain file (magic, version, header checksum, field consistency and
+    /// the exact file size) to be read with `access`. The pager's blocks are runs of
+    /// [`RECORDS_PER_BLOCK`] records. The payload checksum is not checked here (see
+    /// [`Self::verify_payload`]).
+    pub fn open_with(path: &Path, access: Access) -> Result<TerrainFile> {
+        let source = source::open(path, access.source_kind())?;
+        let header: Header = read_header(&*source)?;
+        let table = FixedBlocks {
+            first: header.payload_offset,
+            block_bytes: RECORDS_PER_BLOCK * RECORD_BYTES as u64,
+            end: header.payload_offset + header.payload_bytes,
+            page_bytes: 4096,
+        };
+        let pager = Pager::new(source, Arc::new(table), access)?;
         let layout = header.layout();
-        Ok(TerrainFile { path: path.to_path_buf(), header, layout, _file: file, map })
+        Ok(TerrainFile { path: path.to_path_buf(), header, layout, pager })
     }
 
     pub fn path(&self) -> &Path {
@@ -314,39 +281,108 @@ impl TerrainFile {
         self.header.grid()
     }
 
-    /// The payload as raw bytes.
-    pub fn payload(&self) -> &[u8] {
+    /// The pager the records are read through.
+    pub fn pager(&self) -> &Pager {
+        &self.pager
+    }
+
+    /// The payload as raw bytes, where the file is mapped.
+    pub fn mapped_payload(&self) -> Option<&[u8]> {
         let start = self.header.payload_offset as usize;
-        &self.map[start..start + self.header.payload_bytes as usize]
+        self.pager.mapped().map(|m| &m[start..start + self.header.payload_bytes as usize])
     }
 
-    /// All record slots in layout order (unused slots are zero).
-    pub fn records(&self) -> &[Record] {
+    /// All record slots in layout order (unused slots are zero), where the file is mapped.
+    pub fn mapped_records(&self) -> Option<&[Record]> {
         // Page-aligned start and a size that is a multiple of the record size (validated).
-        bytemuck::cast_slice(self.payload())
+        self.mapped_payload().map(bytemuck::cast_slice)
     }
 
-    /// Asks the kernel not to read ahead around faults in the mapping (`madvise(MADV_RANDOM)`),
-    /// so fault counts reflect the pages actually touched.
-    pub fn advise_random(&self) -> Result<()> {
-        self.map.advise(memmap2::Advice::Random).at(&self.path)
+    /// Every record slot in layout order: the map itself when the file is mapped, else read
+    /// whole into memory through the pager (for whole-file passes such as `verify`).
+    pub fn records(&self) -> Result<std::borrow::Cow<'_, [Record]>> {
+        if let Some(r) = self.mapped_records() {
+            return Ok(std::borrow::Cow::Borrowed(r));
+        }
+        let mut all = Vec::with_capacity(self.header.records as usize);
+        self.for_each_chunk(|_, chunk| {
+            all.extend_from_slice(chunk);
+            Ok(())
+        })?;
+        Ok(std::borrow::Cow::Owned(all))
+    }
+
+    /// Record slot `index` (layout order), through the pager.
+    pub fn record(&self, index: u64) -> Result<Record> {
+        if index >= self.header.records {
+            return Err(Error::InvalidArgument(format!(
+                "{}: record {index} of {}",
+                self.path.display(),
+                self.header.records
+            )));
+        }
+        if let Some(r) = self.mapped_records() {
+            return Ok(r[index as usize]);
+        }
+        let block = self.pager.block((index / RECORDS_PER_BLOCK) as u32)?;
+        let at = (index % RECORDS_PER_BLOCK) as usize * RECORD_BYTES as usize;
+        Ok(bytemuck::pod_read_unaligned(&block[at..at + RECORD_BYTES as usize]))
     }
 
     /// The record of grid position `(x, y)`.
-    pub fn record_at(&self, x: u32, y: u32) -> Record {
-        self.records()[self.layout.index(x, y) as usize]
+    pub fn record_at(&self, x: u32, y: u32) -> Result<Record> {
+        self.record(self.layout.index(x, y))
+    }
+
+    /// Calls `f` with every record slot in layout order, in chunks: `(index of the chunk's first
+    /// record, records)`. A mapped file hands out the map; otherwise the pager's blocks.
+    pub fn for_each_chunk(&self, mut f: impl FnMut(u64, &[Record]) -> Result<()>) -> Result<()> {
+        if let Some(r) = self.mapped_records() {
+            for (k, chunk) in r.chunks(CHECKSUM_BLOCK_BYTES / RECORD_BYTES as usize).enumerate() {
+                f((k * CHECKSUM_BLOCK_BYTES / RECORD_BYTES as usize) as u64, chunk)?;
+            }
+            return Ok(());
+        }
+        let mut records = Vec::new();
+        for id in 0..self.pager.table().blocks() {
+            let block = self.pager.block(id)?;
+            records.clear();
+            records.extend(block.chunks_exact(RECORD_BYTES as usize).map(bytemuck::pod_read_unaligned::<Record>));
+            f(id as u64 * RECORDS_PER_BLOCK, &records)?;
+        }
+        Ok(())
+    }
+
+    /// Asks the kernel not to read ahead around faults or reads (`MADV_RANDOM`,
+    /// `POSIX_FADV_RANDOM`), so fault counts reflect the pages actually touched.
+    pub fn advise_random(&self) -> Result<()> {
+        self.pager.advise_random()
     }
 
     /// Recomputes the payload checksum and compares it with the header's.
     pub fn verify_payload(&self) -> Result<()> {
-        let computed = payload_checksum(self.payload());
+        let computed = match self.mapped_payload() {
+            Some(p) => payload_checksum(p),
+            None => {
+                let mut hashes = Vec::new();
+                let mut buf = vec![0u8; CHECKSUM_BLOCK_BYTES];
+                let (start, len) = (self.header.payload_offset, self.header.payload_bytes);
+                let mut at = 0u64;
+                while at < len {
+                    let n = (len - at).min(CHECKSUM_BLOCK_BYTES as u64) as usize;
+                    self.pager.source().read_at(start + at, &mut buf[..n])?;
+                    hashes.push(block_hash(&buf[..n]));
+                    at += n as u64;
+                }
+                combine_block_hashes(&hashes)
+            }
+        };
         if computed != self.header.payload_checksum {
-            return Err(Error::Checksum {
-                path: self.path.clone(),
-                which: "payload",
-                stored: self.header.payload_checksum,
-                computed,
-            });
+            return Err(super::file_error(
+                &self.path,
+                FileKind::Terrain,
+                Problem::Checksum { which: "payload", stored: self.header.payload_checksum, computed },
+            ));
         }
         Ok(())
     }
@@ -412,12 +448,16 @@ mod tests {
         h.payload_offset + h.payload_bytes
     }
 
+    fn decode(b: &[u8], len: u64) -> Result<Header> {
+        super::super::decode_header(Path::new("t.relief"), b, len)
+    }
+
     #[test]
     fn header_round_trips() {
         let h = sample_header();
-        let b = h.encode();
-        let d = Header::decode(Path::new("t.relief"), &b, file_len(&h)).unwrap();
-        assert_eq!(d.encode(), b);
+        let b = h.encode().0;
+        let d = decode(&b, file_len(&h)).unwrap();
+        assert_eq!(d.encode().0, b);
         assert_eq!(d.records, 81);
         assert_eq!(d.extent_m(), [200.0, 200.0]);
     }
@@ -425,29 +465,32 @@ mod tests {
     #[test]
     fn header_rejects_damage() {
         let h = sample_header();
-        let p = Path::new("t.relief");
-        let b = h.encode();
+        let b = h.encode().0;
+        let problem = |r: Result<Header>| match r {
+            Err(Error::File { kind: FileKind::Terrain, problem, .. }) => problem,
+            other => panic!("{other:?}"),
+        };
         let mut m = b;
         m[0] = b'X';
-        assert!(matches!(Header::decode(p, &m, 0), Err(Error::BadMagic { .. })));
+        assert_eq!(problem(decode(&m, 0)), Problem::BadMagic);
         let mut m = b;
         m[8] = 9;
-        assert!(matches!(Header::decode(p, &m, 0), Err(Error::BadVersion { found: 9, .. })));
+        assert_eq!(problem(decode(&m, 0)), Problem::Version { found: 9, supported: 1 });
         let mut m = b;
         m[100] ^= 1;
-        assert!(matches!(Header::decode(p, &m, file_len(&h)), Err(Error::Checksum { which: "header", .. })));
-        assert!(matches!(Header::decode(p, &b, file_len(&h) - 1), Err(Error::Truncated { .. })));
-        assert!(matches!(Header::decode(p, &b[..100], 100), Err(Error::Truncated { .. })));
+        assert!(matches!(problem(decode(&m, file_len(&h))), Problem::Checksum { which: "header", .. }));
+        assert!(matches!(problem(decode(&b, file_len(&h) - 1)), Problem::Truncated { .. }));
+        assert!(matches!(problem(decode(&b[..100], 100)), Problem::Truncated { .. }));
         // A consistent checksum over inconsistent fields is still rejected.
         let mut bad = h.clone();
         bad.records += 1;
-        let e = Header::decode(p, &bad.encode(), file_len(&h)).unwrap_err();
+        let e = decode(&bad.encode().0, file_len(&h)).unwrap_err();
         assert!(e.to_string().contains("records"), "{e}");
         let mut bad = h.clone();
         bad.valid_window = [0, 0, 10, 9];
-        assert!(Header::decode(p, &bad.encode(), file_len(&h)).is_err());
+        assert!(decode(&bad.encode().0, file_len(&h)).is_err());
         let mut bad = h;
         bad.spacing_m = [0.0, 1.0];
-        assert!(Header::decode(p, &bad.encode(), file_len(&bad)).is_err());
+        assert!(decode(&bad.encode().0, file_len(&bad)).is_err());
     }
 }

@@ -1,5 +1,26 @@
-//! The VDT file (view-dependence forest, El-Sana & Chiang 2000, §3.1; layout in [`super`]): its
-//! header, the writer used by [`super::build`], and a validated, memory-mapped reader.
+//! The VDT file: the view-dependence forest of a mesh (El-Sana & Chiang 2000, §3.1), written by
+//! [`crate::metanode::build`] and read back, mapped, to block it into meta-nodes.
+//!
+//! # VDT file (little-endian; the container's header block, then the records)
+//! ```text
+//! offset size  field
+//!      0    8  magic "\x89RLFVDT\n"
+//!      8    4  version (2)
+//!     12    4  metric (0 length, 1 quadric)
+//!     16    8  leaves (input vertices)
+//!     24    8  nodes (leaves + collapses); node records are indexed by id
+//!     32    8  triangles (input triangles kept, in the triangle section)
+//!     40    8  base triangles (the last `base` entries of the triangle section: m(t) = none)
+//!     48   24  bounding box min x, y, z (f64)
+//!     72   24  bounding box max x, y, z (f64)
+//!     96  152  reserved (0)
+//!    248    8  header checksum: XXH3-64 of bytes 0..248
+//!    256    -  node records, `nodes` × 48 bytes ([`VdtNode`]), in id order
+//!      -    -  triangle records, `triangles` × 12 bytes ([`VdtTriangle`]): grouped by m(t) in
+//!              increasing node id (node p's are `tri_start .. tri_start + tri_count`), then the
+//!              base triangles
+//! ```
+//! Version 1 had a 128-byte header without a checksum.
 //!
 //! [`VdtFile::open`] checks the magic, the version, the metric, the counts against each other and
 //! the exact file length against the counts, then every node record (children below the node,
@@ -7,23 +28,22 @@
 //! After that, ids read from the file can be used as indices without further checks of their
 //! range. A bad file gives one error line naming the file and the problem.
 
-use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
-use memmap2::Mmap;
 use serde::Serialize;
 
-use crate::error::{Error, IoContext, Result};
+use super::{corrupt, read_header, FileKind, Format, HeaderBytes, Problem};
+use crate::error::Result;
 use crate::mesh::Bounds;
 use crate::metanode::{VdtNode, VdtTriangle, NONE};
+use crate::pager::source::MappedFile;
 
-/// The file's first 8 bytes.
-pub const MAGIC: [u8; 8] = *b"\x89RLFVDT\n";
 /// The version this build writes and reads.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 /// Bytes before the node records.
-pub const HEADER_BYTES: usize = 128;
+pub const HEADER_BYTES: usize = super::HEADER_BYTES;
 /// Bytes per node record.
 pub const NODE_BYTES: usize = std::mem::size_of::<VdtNode>();
 /// Bytes per triangle record.
@@ -81,68 +101,44 @@ impl VdtHeader {
     pub fn file_bytes(&self) -> u64 {
         HEADER_BYTES as u64 + self.nodes * NODE_BYTES as u64 + self.triangles * TRIANGLE_BYTES as u64
     }
+}
 
-    /// The 128 header bytes.
-    pub fn encode(&self) -> [u8; HEADER_BYTES] {
-        let mut b = [0u8; HEADER_BYTES];
-        b[0..8].copy_from_slice(&MAGIC);
-        b[8..12].copy_from_slice(&VERSION.to_le_bytes());
-        b[12..16].copy_from_slice(&(self.metric as u32).to_le_bytes());
-        b[16..24].copy_from_slice(&self.leaves.to_le_bytes());
-        b[24..32].copy_from_slice(&self.nodes.to_le_bytes());
-        b[32..40].copy_from_slice(&self.triangles.to_le_bytes());
-        b[40..48].copy_from_slice(&self.base_triangles.to_le_bytes());
-        for k in 0..3 {
-            b[48 + 8 * k..56 + 8 * k].copy_from_slice(&self.bounds.min[k].to_le_bytes());
-            b[72 + 8 * k..80 + 8 * k].copy_from_slice(&self.bounds.max[k].to_le_bytes());
-        }
-        b
+impl Format for VdtHeader {
+    const KIND: FileKind = FileKind::Vdt;
+
+    fn encode_fields(&self, h: &mut HeaderBytes) {
+        h.put_u32(12, self.metric as u32);
+        h.put_u64(16, self.leaves);
+        h.put_u64(24, self.nodes);
+        h.put_u64(32, self.triangles);
+        h.put_u64(40, self.base_triangles);
+        h.put_f64x3(48, self.bounds.min);
+        h.put_f64x3(72, self.bounds.max);
     }
 
-    /// Decodes and checks a header against the file's length; errors name `path`.
-    pub fn decode(path: &Path, head: &[u8], file_len: u64) -> Result<VdtHeader> {
-        let bad = |problem: String| Error::BadVdt { path: path.into(), problem };
-        if head.len() < 8 || head[0..8] != MAGIC {
-            return Err(bad("not a VDT file (bad magic)".into()));
-        }
-        if head.len() < HEADER_BYTES {
-            return Err(Error::Truncated { path: path.into(), expected: HEADER_BYTES as u64, found: file_len });
-        }
-        let u32_at = |o: usize| u32::from_le_bytes(head[o..o + 4].try_into().unwrap_or_default());
-        let u64_at = |o: usize| u64::from_le_bytes(head[o..o + 8].try_into().unwrap_or_default());
-        let f64_at = |o: usize| f64::from_le_bytes(head[o..o + 8].try_into().unwrap_or_default());
-        let version = u32_at(8);
-        if version != VERSION {
-            return Err(bad(format!("VDT version {version} is not supported (this build reads version {VERSION})")));
-        }
+    /// Checks the counts against each other and the file's exact length against them.
+    fn decode(h: &HeaderBytes, file_len: u64) -> std::result::Result<VdtHeader, Problem> {
+        let bad = |what: String| Problem::Corrupt(format!("header: {what}"));
         let metric =
-            VdtMetric::from_code(u32_at(12)).ok_or_else(|| bad(format!("unknown metric code {}", u32_at(12))))?;
-        let (leaves, nodes, triangles, base_triangles) = (u64_at(16), u64_at(24), u64_at(32), u64_at(40));
+            VdtMetric::from_code(h.u32(12)).ok_or_else(|| bad(format!("unknown metric code {}", h.u32(12))))?;
+        let (leaves, nodes, triangles, base_triangles) = (h.u64(16), h.u64(24), h.u64(32), h.u64(40));
         if nodes < leaves || nodes >= NONE as u64 {
-            return Err(bad(format!("corrupt header: {nodes} nodes for {leaves} leaves")));
+            return Err(bad(format!("{nodes} nodes for {leaves} leaves")));
         }
         if nodes > (2 * leaves).saturating_sub(1) {
-            return Err(bad(format!(
-                "corrupt header: {nodes} nodes is more than a binary forest on {leaves} leaves has"
-            )));
+            return Err(bad(format!("{nodes} nodes is more than a binary forest on {leaves} leaves has")));
         }
         if base_triangles > triangles || triangles >= NONE as u64 {
-            return Err(bad(format!("corrupt header: {base_triangles} base triangles of {triangles}")));
+            return Err(bad(format!("{base_triangles} base triangles of {triangles}")));
         }
-        let bounds = Bounds { min: [f64_at(48), f64_at(56), f64_at(64)], max: [f64_at(72), f64_at(80), f64_at(88)] };
+        let bounds = Bounds { min: h.f64x3(48), max: h.f64x3(72) };
         if bounds.min.iter().chain(&bounds.max).any(|c| !c.is_finite()) {
-            return Err(bad("corrupt header: non-finite bounding box".into()));
+            return Err(bad("non-finite bounding box".into()));
         }
         let header = VdtHeader { metric, leaves, nodes, triangles, base_triangles, bounds };
         let expected = header.file_bytes();
-        if file_len < expected {
-            return Err(Error::Truncated { path: path.into(), expected, found: file_len });
-        }
-        if file_len > expected {
-            return Err(bad(format!(
-                "{} bytes after the triangle section (expected {expected} bytes in all)",
-                file_len - expected
-            )));
+        if file_len != expected {
+            return Err(Problem::Truncated { expected, found: file_len });
         }
         Ok(header)
     }
@@ -151,30 +147,22 @@ impl VdtHeader {
 /// Writes a whole VDT file's header; the caller then writes `nodes` node records and `triangles`
 /// triangle records (see [`super::build`], which assembles the file atomically).
 pub fn write_header(w: &mut impl Write, header: &VdtHeader) -> std::io::Result<()> {
-    w.write_all(&header.encode())
+    w.write_all(&header.encode().0)
 }
 
 /// A validated VDT file, mapped read-only.
 pub struct VdtFile {
     path: PathBuf,
     header: VdtHeader,
-    _file: File,
-    map: Mmap,
+    file: Arc<MappedFile>,
 }
 
 impl VdtFile {
     /// Opens and validates a VDT file (see the module docs for what is checked).
     pub fn open(path: &Path) -> Result<VdtFile> {
-        let file = File::open(path).at(path)?;
-        let file_len = file.metadata().at(path)?.len();
-        let mut head = vec![0u8; (HEADER_BYTES as u64).min(file_len) as usize];
-        {
-            use std::io::Read;
-            (&file).read_exact(&mut head).at(path)?;
-        }
-        let header = VdtHeader::decode(path, &head, file_len)?;
-        let map = crate::pager::source::map_read_only(path, &file, file_len)?;
-        let vdt = VdtFile { path: path.to_path_buf(), header, _file: file, map };
+        let file = Arc::new(MappedFile::open(path)?);
+        let header: VdtHeader = read_header(&*file)?;
+        let vdt = VdtFile { path: path.to_path_buf(), header, file };
         vdt.check_records()?;
         Ok(vdt)
     }
@@ -182,7 +170,7 @@ impl VdtFile {
     /// Every node's links, counts and triangle range, and every triangle's corners, against the
     /// header (one pass over the file).
     fn check_records(&self) -> Result<()> {
-        let bad = |problem: String| Error::BadVdt { path: self.path.clone(), problem };
+        let bad = |what: String| corrupt(&self.path, FileKind::Vdt, what);
         let leaves = self.header.leaves as u32;
         let nodes = self.nodes();
         let dying = self.header.triangles - self.header.base_triangles;
@@ -237,14 +225,14 @@ impl VdtFile {
     pub fn nodes(&self) -> &[VdtNode] {
         let start = HEADER_BYTES;
         let end = start + self.header.nodes as usize * NODE_BYTES;
-        bytemuck::cast_slice(&self.map[start..end])
+        bytemuck::cast_slice(&self.file.bytes()[start..end])
     }
 
     /// Every triangle record: grouped by m(t) in increasing node id, then the base triangles.
     pub fn triangles(&self) -> &[VdtTriangle] {
         let start = HEADER_BYTES + self.header.nodes as usize * NODE_BYTES;
         let end = start + self.header.triangles as usize * TRIANGLE_BYTES;
-        bytemuck::cast_slice(&self.map[start..end])
+        bytemuck::cast_slice(&self.file.bytes()[start..end])
     }
 
     /// The triangles that never die (m(t) = none): the base mesh over the roots.
@@ -298,30 +286,37 @@ mod tests {
         }
     }
 
+    fn decode(b: &[u8], len: u64) -> Result<VdtHeader> {
+        super::super::decode_header(Path::new("x.vdt"), b, len)
+    }
+
     #[test]
     fn header_round_trips_and_sizes_the_file() {
         let h = header();
-        let bytes = h.encode();
-        assert_eq!(&bytes[..8], &MAGIC);
-        assert_eq!(h.file_bytes(), 128 + 5 * 48 + 12);
-        assert_eq!(VdtHeader::decode(Path::new("x.vdt"), &bytes, h.file_bytes()).unwrap(), h);
+        let bytes = h.encode().0;
+        assert_eq!(&bytes[..8], b"\x89RLFVDT\n");
+        assert_eq!(h.file_bytes(), 256 + 5 * 48 + 12);
+        assert_eq!(decode(&bytes, h.file_bytes()).unwrap(), h);
     }
 
     #[test]
     fn inconsistent_headers_are_refused() {
-        let p = Path::new("x.vdt");
-        let err = |h: VdtHeader| VdtHeader::decode(p, &h.encode(), h.file_bytes()).unwrap_err().to_string();
+        let err = |h: VdtHeader| decode(&h.encode().0, h.file_bytes()).unwrap_err().to_string();
         assert_eq!(
             err(VdtHeader { nodes: 6, ..header() }),
-            "x.vdt: corrupt header: 6 nodes is more than a binary forest on 3 leaves has"
+            "x.vdt: corrupt VDT file: header: 6 nodes is more than a binary forest on 3 leaves has"
         );
-        assert_eq!(err(VdtHeader { nodes: 2, ..header() }), "x.vdt: corrupt header: 2 nodes for 3 leaves");
-        assert_eq!(err(VdtHeader { base_triangles: 2, ..header() }), "x.vdt: corrupt header: 2 base triangles of 1");
-        let mut b = header().encode();
-        b[12] = 7;
+        assert_eq!(err(VdtHeader { nodes: 2, ..header() }), "x.vdt: corrupt VDT file: header: 2 nodes for 3 leaves");
         assert_eq!(
-            VdtHeader::decode(p, &b, header().file_bytes()).unwrap_err().to_string(),
-            "x.vdt: unknown metric code 7"
+            err(VdtHeader { base_triangles: 2, ..header() }),
+            "x.vdt: corrupt VDT file: header: 2 base triangles of 1"
+        );
+        let mut b = header().encode();
+        b.put_u32(12, 7);
+        b.seal();
+        assert_eq!(
+            decode(&b.0, header().file_bytes()).unwrap_err().to_string(),
+            "x.vdt: corrupt VDT file: header: unknown metric code 7"
         );
     }
 }

@@ -10,103 +10,19 @@
 //! follow the breadth-first order, so the root meta-nodes come first and each meta-node's
 //! children are contiguous.
 //!
-//! # Meta-node file (little-endian)
-//! ```text
-//! offset size  field
-//!      0    8  magic "\x89RLFMNT\n"
-//!      8    4  version (1)
-//!     12    4  metric (0 length, 1 quadric)
-//!     16    4  page bytes (a power of two; every block starts on a page)
-//!     20    4  levels per meta-node (L)
-//!     24    8  leaves, 32: nodes, 40: triangles, 48: base triangles
-//!     56    8  meta-nodes, 64: root meta-nodes (ids 0..roots)
-//!     72    8  holder bytes (the largest block)
-//!     80    8  MNT offset (meta-node table: `meta-nodes` × 24-byte [`MntEntry`])
-//!     88    8  base offset (base triangles: 12-byte leaf-DFS corner triples)
-//!     96    8  DATA offset (page-aligned), 104: DATA bytes (to the end of the file)
-//!    112   48  bounding box min x, y, z, max x, y, z (f64)
-//!    160   88  reserved (0)
-//!    248    8  header checksum: XXH3-64 of bytes 0..248
-//! ```
-//! A block: `node_count, coord_count, tri_count, 0` (u32 each), then `node_count` × 56-byte
-//! [`MnNode`], `coord_count` × 12-byte positions (f32), `tri_count` × 12-byte triangles whose
-//! corners are leaf DFS numbers (the leaves numbered in depth-first order, first child first, so a
-//! node's leaves are the interval `dfs_lo .. dfs_lo + leaves`).
 
-use std::fs::File;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use bytemuck::{Pod, Zeroable};
-use memmap2::Mmap;
 use serde::Serialize;
 
 use super::{VdtNode, VdtTriangle, NONE};
-use crate::error::{Error, IoContext, Result};
-use crate::format::terrain::{get_u32, get_u64, put_f64, put_u32, put_u64};
+use crate::error::{Error, Result};
+use crate::format::metanode::{
+    MetaHeader, MnNode, MntEntry, BLOCK_HEADER_BYTES, COORD_BYTES, HEADER_BYTES, NODE_BYTES, TRI_BYTES,
+};
+use crate::format::Format;
 use crate::mesh::Bounds;
-
-pub const MAGIC: [u8; 8] = *b"\x89RLFMNT\n";
-pub const VERSION: u32 = 1;
-pub const HEADER_BYTES: u64 = 4096;
-pub const BLOCK_HEADER_BYTES: usize = 16;
-
-/// One node in a block (56 bytes). References to other nodes are (meta-node, local index) pairs;
-/// the ids are the VDT ids, kept for the implicit-dependency tests.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct MnNode {
-    pub id: u32,
-    /// The parent's id ([`NONE`] for roots): the collapse test compares neighbours' parent ids.
-    pub parent_id: u32,
-    pub parent_meta: u32,
-    /// [`NONE`] for leaves.
-    pub child_meta: [u32; 2],
-    pub parent_local: u16,
-    pub child_local: [u16; 2],
-    /// Index into the block's coordinates.
-    pub coord: u16,
-    pub switch: f32,
-    pub radius: f32,
-    /// The parent's switch value and radius, so whether to collapse into the parent can be
-    /// decided without its (possibly absent) meta-node. 0 for roots.
-    pub parent_switch: f32,
-    pub parent_radius: f32,
-    pub dfs_lo: u32,
-    pub leaves: u32,
-    /// This node's triangles in the block's triangle list (those its split creates).
-    pub tri_start: u16,
-    pub tri_count: u16,
-}
-
-impl MnNode {
-    pub fn is_leaf(&self) -> bool {
-        self.child_meta[0] == NONE
-    }
-
-    pub fn is_root(&self) -> bool {
-        self.parent_id == NONE
-    }
-
-    /// Whether leaf DFS number `d` lies under this node.
-    #[inline]
-    pub fn covers(&self, d: u32) -> bool {
-        d.wrapping_sub(self.dfs_lo) < self.leaves
-    }
-}
-
-/// One entry of the meta-node table (MNT): where a block is and how the meta-node tree links.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
-pub struct MntEntry {
-    /// From the start of the file; a multiple of the page size.
-    pub offset: u64,
-    pub bytes: u32,
-    /// [`NONE`] for root meta-nodes.
-    pub parent: u32,
-    pub first_child: u32,
-    pub child_count: u32,
-}
 
 /// How to block the forest.
 #[derive(Clone, Copy, Debug)]
@@ -150,10 +66,6 @@ pub struct Forest<'a> {
     pub bounds: Bounds,
 }
 
-const NODE_BYTES: usize = std::mem::size_of::<MnNode>();
-const COORD_BYTES: usize = 12;
-const TRI_BYTES: usize = 12;
-
 /// Builds and writes the meta-node file at `out` (atomically).
 pub fn write_metanode_file(forest: &Forest<'_>, options: BlockingOptions, out: &Path) -> Result<MetaNodeReport> {
     let started = std::time::Instant::now();
@@ -181,29 +93,25 @@ pub fn write_metanode_file(forest: &Forest<'_>, options: BlockingOptions, out: &
     let holder_bytes = plan.metas.iter().map(|m| m.bytes).max().unwrap_or(0) as u64;
     let roots = plan.metas.iter().take_while(|m| m.parent == NONE).count() as u64;
 
+    let meta_header = MetaHeader {
+        metric: forest.metric,
+        page_bytes: options.page_bytes,
+        levels_per_node: options.levels_per_node,
+        leaves: forest.leaves as u64,
+        nodes: forest.nodes.len() as u64,
+        triangles: forest.triangles.len() as u64,
+        base_triangles: forest.base_triangles as u64,
+        metanodes: plan.metas.len() as u64,
+        root_metanodes: roots,
+        holder_bytes,
+        mnt_offset,
+        base_offset,
+        data_offset,
+        data_bytes,
+        bounds: forest.bounds,
+    };
     let mut header = vec![0u8; HEADER_BYTES as usize];
-    header[0..8].copy_from_slice(&MAGIC);
-    put_u32(&mut header, 8, VERSION);
-    put_u32(&mut header, 12, forest.metric);
-    put_u32(&mut header, 16, options.page_bytes);
-    put_u32(&mut header, 20, options.levels_per_node);
-    put_u64(&mut header, 24, forest.leaves as u64);
-    put_u64(&mut header, 32, forest.nodes.len() as u64);
-    put_u64(&mut header, 40, forest.triangles.len() as u64);
-    put_u64(&mut header, 48, forest.base_triangles as u64);
-    put_u64(&mut header, 56, plan.metas.len() as u64);
-    put_u64(&mut header, 64, roots);
-    put_u64(&mut header, 72, holder_bytes);
-    put_u64(&mut header, 80, mnt_offset);
-    put_u64(&mut header, 88, base_offset);
-    put_u64(&mut header, 96, data_offset);
-    put_u64(&mut header, 104, data_bytes);
-    for k in 0..3 {
-        put_f64(&mut header, 112 + 8 * k, forest.bounds.min[k]);
-        put_f64(&mut header, 136 + 8 * k, forest.bounds.max[k]);
-    }
-    let sum = xxhash_rust::xxh3::xxh3_64(&header[..248]);
-    put_u64(&mut header, 248, sum);
+    header[..crate::format::HEADER_BYTES].copy_from_slice(&meta_header.encode().0);
 
     let base = &forest.triangles[forest.triangles.len() - forest.base_triangles..];
     crate::sys::atomic_file::write(out, |w| {
@@ -489,251 +397,10 @@ fn encode_block(forest: &Forest<'_>, plan: &Plan, m: u32, out: &mut Vec<u8>) {
     out.extend_from_slice(bytemuck::cast_slice(&tris));
 }
 
-/// A validated, zero-copy view of one block.
-#[derive(Clone, Copy, Debug)]
-pub struct BlockView<'a> {
-    pub nodes: &'a [MnNode],
-    pub coords: &'a [[f32; 3]],
-    pub tris: &'a [[u32; 3]],
-}
-
-impl<'a> BlockView<'a> {
-    /// Checks the counts against the length and every local reference against the counts.
-    /// `bytes` must be 4-byte aligned (mapped pages and `u32` buffers are).
-    pub fn parse(bytes: &'a [u8], metanodes: u32) -> std::result::Result<BlockView<'a>, String> {
-        if bytes.len() < BLOCK_HEADER_BYTES {
-            return Err(format!("block of {} bytes is shorter than its header", bytes.len()));
-        }
-        let count = |k: usize| {
-            u32::from_le_bytes([bytes[4 * k], bytes[4 * k + 1], bytes[4 * k + 2], bytes[4 * k + 3]]) as usize
-        };
-        let (n, c, t) = (count(0), count(1), count(2));
-        let need = BLOCK_HEADER_BYTES + n * NODE_BYTES + c * COORD_BYTES + t * TRI_BYTES;
-        if need > bytes.len() || n == 0 {
-            return Err(format!(
-                "block counts ({n} nodes, {c} coordinates, {t} triangles) do not fit its {} bytes",
-                bytes.len()
-            ));
-        }
-        let body = &bytes[BLOCK_HEADER_BYTES..need];
-        let (nb, rest) = body.split_at(n * NODE_BYTES);
-        let (cb, tb) = rest.split_at(c * COORD_BYTES);
-        let cast = |what: &str, e: bytemuck::PodCastError| format!("block {what}: {e:?}");
-        let nodes: &[MnNode] = bytemuck::try_cast_slice(nb).map_err(|e| cast("nodes", e))?;
-        let coords: &[[f32; 3]] = bytemuck::try_cast_slice(cb).map_err(|e| cast("coordinates", e))?;
-        let tris: &[[u32; 3]] = bytemuck::try_cast_slice(tb).map_err(|e| cast("triangles", e))?;
-        for (k, v) in nodes.iter().enumerate() {
-            let tri_end = v.tri_start as usize + v.tri_count as usize;
-            let refs_ok = (v.parent_id == NONE || v.parent_meta < metanodes)
-                && (v.child_meta[0] == NONE) == (v.child_meta[1] == NONE)
-                && (v.child_meta[0] == NONE || (v.child_meta[0] < metanodes && v.child_meta[1] < metanodes));
-            if (v.coord as usize) >= c || tri_end > t || !refs_ok || v.leaves == 0 {
-                return Err(format!("block node {k} (id {}) has references out of range", v.id));
-            }
-        }
-        Ok(BlockView { nodes, coords, tris })
-    }
-
-    pub fn position(&self, node: &MnNode) -> [f32; 3] {
-        self.coords[node.coord as usize]
-    }
-
-    pub fn triangles_of(&self, node: &MnNode) -> &'a [[u32; 3]] {
-        // In usize: the two u16 fields of a node from another view could sum past u16::MAX.
-        &self.tris[node.tri_start as usize..node.tri_start as usize + node.tri_count as usize]
-    }
-}
-
-/// The decoded header.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct MetaHeader {
-    pub metric: u32,
-    pub page_bytes: u32,
-    pub levels_per_node: u32,
-    pub leaves: u64,
-    pub nodes: u64,
-    pub triangles: u64,
-    pub base_triangles: u64,
-    pub metanodes: u64,
-    pub root_metanodes: u64,
-    pub holder_bytes: u64,
-    pub mnt_offset: u64,
-    pub base_offset: u64,
-    pub data_offset: u64,
-    pub data_bytes: u64,
-    pub bounds: Bounds,
-}
-
-/// An open meta-node file: the header and meta-node table in memory, the blocks mapped.
-pub struct MetaNodeFile {
-    path: PathBuf,
-    file: File,
-    map: Mmap,
-    header: MetaHeader,
-    mnt: Vec<MntEntry>,
-}
-
-impl MetaNodeFile {
-    /// Opens and validates a meta-node file: magic, version, header checksum, section sizes
-    /// against the file length, and every table entry (offsets inside DATA, sizes within the
-    /// holder size, tree links in range). Blocks are validated when read ([`BlockView::parse`]).
-    pub fn open(path: &Path) -> Result<MetaNodeFile> {
-        let file = File::open(path).at(path)?;
-        let len = file.metadata().at(path)?.len();
-        let map = crate::pager::source::map_read_only(path, &file, len)?;
-        let header = decode_header(path, &map, len)?;
-        let bad = |problem: String| Error::BadHeader { path: path.to_path_buf(), problem };
-        let mnt_bytes = header.metanodes as usize * std::mem::size_of::<MntEntry>();
-        let mnt_slice = &map[header.mnt_offset as usize..header.mnt_offset as usize + mnt_bytes];
-        let mnt: Vec<MntEntry> = mnt_slice.chunks_exact(24).map(bytemuck::pod_read_unaligned).collect();
-        let page = header.page_bytes as u64;
-        let metas = header.metanodes as u32;
-        for (m, e) in mnt.iter().enumerate() {
-            let in_data = e.offset >= header.data_offset
-                && e.offset % page == 0
-                && e.offset
-                    .checked_add(e.bytes as u64)
-                    .is_some_and(|end| end <= header.data_offset + header.data_bytes);
-            let root = (m as u64) < header.root_metanodes;
-            let links = (root == (e.parent == NONE))
-                && (root || e.parent < m as u32)
-                && e.first_child as u64 + e.child_count as u64 <= metas as u64
-                && (e.child_count == 0 || e.first_child > m as u32);
-            if !in_data || e.bytes as u64 > header.holder_bytes || e.bytes < BLOCK_HEADER_BYTES as u32 || !links {
-                return Err(bad(format!("meta-node table entry {m} is inconsistent")));
-            }
-        }
-        Ok(MetaNodeFile { path: path.to_path_buf(), file, map, header, mnt })
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
-    /// No readahead, for the map and for `pread`: a cold flight then reads exactly the pages it
-    /// touches, so Virt and Ext are compared on the same I/O.
-    pub fn advise_random(&self) -> Result<()> {
-        use std::os::fd::AsRawFd;
-        self.map.advise(memmap2::Advice::Random).at(&self.path)?;
-        // SAFETY: posix_fadvise only reads the descriptor, which `self.file` keeps open.
-        let rc = unsafe { libc::posix_fadvise(self.file.as_raw_fd(), 0, 0, libc::POSIX_FADV_RANDOM) };
-        if rc != 0 {
-            return Err(Error::io(&self.path, std::io::Error::from_raw_os_error(rc)));
-        }
-        Ok(())
-    }
-
-    pub fn header(&self) -> &MetaHeader {
-        &self.header
-    }
-
-    pub fn mnt(&self) -> &[MntEntry] {
-        &self.mnt
-    }
-
-    /// The base triangles (m(t) = none), corners as leaf DFS numbers.
-    pub fn base_triangles(&self) -> &[[u32; 3]] {
-        let at = self.header.base_offset as usize;
-        bytemuck::cast_slice(&self.map[at..at + self.header.base_triangles as usize * TRI_BYTES])
-    }
-
-    /// Block `m` through the map (the "Virt" path: the OS pages it in).
-    pub fn mapped_block(&self, m: u32) -> &[u8] {
-        let e = &self.mnt[m as usize];
-        &self.map[e.offset as usize..e.offset as usize + e.bytes as usize]
-    }
-
-    /// Reads block `m` with `pread` into `buf` (the "Ext" path), resized to the block's words.
-    pub fn read_block(&self, m: u32, buf: &mut Vec<u32>) -> Result<()> {
-        use std::os::unix::fs::FileExt;
-        let e =
-            self.mnt.get(m as usize).ok_or_else(|| Error::InvalidArgument(format!("meta-node {m} out of range")))?;
-        buf.clear();
-        buf.resize((e.bytes as usize).div_ceil(4), 0);
-        let bytes: &mut [u8] = bytemuck::cast_slice_mut(buf.as_mut_slice());
-        self.file.read_exact_at(&mut bytes[..e.bytes as usize], e.offset).at(&self.path)
-    }
-
-    /// Pages of block `m` (what reading it costs).
-    pub fn block_pages(&self, m: u32) -> u64 {
-        (self.mnt[m as usize].bytes as u64).div_ceil(self.header.page_bytes as u64)
-    }
-
-    /// The bytes of the whole tree on disk (DATA + MNT).
-    pub fn tree_bytes(&self) -> u64 {
-        self.header.data_bytes + self.mnt.len() as u64 * 24
-    }
-}
-
-fn decode_header(path: &Path, b: &[u8], len: u64) -> Result<MetaHeader> {
-    let bad = |problem: String| Error::BadHeader { path: path.to_path_buf(), problem };
-    if b.len() < 8 || b[0..8] != MAGIC {
-        return Err(Error::BadMagic { path: path.to_path_buf() });
-    }
-    if b.len() < HEADER_BYTES as usize {
-        return Err(Error::Truncated { path: path.into(), expected: HEADER_BYTES, found: len });
-    }
-    let version = get_u32(b, 8);
-    if version != VERSION {
-        return Err(Error::BadVersion { path: path.into(), found: version, supported: VERSION });
-    }
-    let stored = get_u64(b, 248);
-    let computed = xxhash_rust::xxh3::xxh3_64(&b[..248]);
-    if stored != computed {
-        return Err(Error::Checksum { path: path.into(), which: "header", stored, computed });
-    }
-    let f = |at| f64::from_bits(get_u64(b, at));
-    let h = MetaHeader {
-        metric: get_u32(b, 12),
-        page_bytes: get_u32(b, 16),
-        levels_per_node: get_u32(b, 20),
-        leaves: get_u64(b, 24),
-        nodes: get_u64(b, 32),
-        triangles: get_u64(b, 40),
-        base_triangles: get_u64(b, 48),
-        metanodes: get_u64(b, 56),
-        root_metanodes: get_u64(b, 64),
-        holder_bytes: get_u64(b, 72),
-        mnt_offset: get_u64(b, 80),
-        base_offset: get_u64(b, 88),
-        data_offset: get_u64(b, 96),
-        data_bytes: get_u64(b, 104),
-        bounds: Bounds { min: [f(112), f(120), f(128)], max: [f(136), f(144), f(152)] },
-    };
-    if !h.page_bytes.is_power_of_two() || h.page_bytes < 512 {
-        return Err(bad(format!("page size {} is not a power of two ≥ 512", h.page_bytes)));
-    }
-    if h.metanodes == 0 || h.root_metanodes == 0 || h.root_metanodes > h.metanodes || h.metanodes > u32::MAX as u64 / 2
-    {
-        return Err(bad(format!("{} meta-nodes with {} roots", h.metanodes, h.root_metanodes)));
-    }
-    if h.leaves == 0 || h.leaves > h.nodes || h.nodes >= NONE as u64 || h.base_triangles > h.triangles {
-        return Err(bad(format!(
-            "{} leaves, {} nodes, {} triangles ({} base)",
-            h.leaves, h.nodes, h.triangles, h.base_triangles
-        )));
-    }
-    let mnt_end = h.metanodes.checked_mul(24).and_then(|x| x.checked_add(h.mnt_offset));
-    let base_end = h.base_triangles.checked_mul(12).and_then(|x| x.checked_add(h.base_offset));
-    let data_end = h.data_offset.checked_add(h.data_bytes);
-    let ordered = h.mnt_offset == HEADER_BYTES
-        && mnt_end == Some(h.base_offset)
-        && base_end.is_some_and(|e| e <= h.data_offset)
-        && h.data_offset.is_multiple_of(h.page_bytes as u64);
-    if !ordered || h.holder_bytes > u32::MAX as u64 {
-        return Err(bad("section offsets are inconsistent".into()));
-    }
-    match data_end {
-        Some(end) if end == len => {}
-        Some(end) => return Err(Error::Truncated { path: path.into(), expected: end, found: len }),
-        None => return Err(bad("DATA size overflows".into())),
-    }
-    Ok(h)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::format::metanode::{BlockView, MetaNodeFile};
 
     /// A complete binary tree over `leaves` (a power of two) leaves on a line, with one triangle
     /// per internal node (its first leaves) and one base triangle.
@@ -795,8 +462,9 @@ mod tests {
         let mut seen = vec![0u32; nodes.len()];
         let metas = f.header().metanodes as u32;
         for m in 0..metas {
-            let view = BlockView::parse(f.mapped_block(m), metas).unwrap();
-            assert!(f.mapped_block(m).len() <= 1024, "block {m} exceeds the page");
+            let block = f.block(m).unwrap();
+            let view = BlockView::parse(&block, metas).unwrap();
+            assert!(block.len() <= 1024, "block {m} exceeds the page");
             let e = f.mnt()[m as usize];
             for (local, v) in view.nodes.iter().enumerate() {
                 seen[v.id as usize] += 1;
@@ -806,7 +474,8 @@ mod tests {
                 if v.parent_id != NONE {
                     // The parent is in this block or in the parent meta-node.
                     assert!(v.parent_meta == m || v.parent_meta == e.parent, "node {} parent block", v.id);
-                    let pv = BlockView::parse(f.mapped_block(v.parent_meta), metas).unwrap();
+                    let parent_block = f.block(v.parent_meta).unwrap();
+                    let pv = BlockView::parse(&parent_block, metas).unwrap();
                     let p = &pv.nodes[v.parent_local as usize];
                     assert_eq!(p.id, orig.parent);
                     let k = if p.child_meta[0] == m && p.child_local[0] as usize == local { 0 } else { 1 };
@@ -866,7 +535,7 @@ mod tests {
         b[at..at + 4].copy_from_slice(&100_000u32.to_le_bytes());
         std::fs::write(&bad, &b).unwrap();
         let g = MetaNodeFile::open(&bad).unwrap();
-        assert!(BlockView::parse(g.mapped_block(0), 1).is_err());
+        assert!(BlockView::parse(&*g.block(0).unwrap(), 1).is_err());
         // Options.
         let e = write_metanode_file(
             &forest(&nodes, &tris, 64),

@@ -1,7 +1,8 @@
 //! Run-time navigation of meta-node trees (El-Sana & Chiang 2000, §3.3; implicit dependencies
 //! from El-Sana & Varshney 1999): the active nodes (a cut through the forest) and the active
 //! triangles, adapted each frame by splits and collapses against the switch values, with the data
-//! coming from a [`MetaStore`]: the buffer pool ("Ext") or the plain map ("Virt").
+//! coming from a [`MetaStore`]: [`PagedStore`], the meta-node file's pager with any access (the
+//! plain map, "Virt"; positioned reads; or the buffer pool with its I/O thread, "Ext").
 //!
 //! - **Active nodes** are kept by their first leaf's DFS number (`dfs_lo`). The cut partitions the
 //!   leaves into intervals, so the active node holding leaf d is the one with the greatest key
@@ -22,17 +23,17 @@
 
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
 
 use glam::DVec3;
 use serde::Serialize;
 
-use super::blocking::{BlockView, MetaNodeFile, MnNode, MntEntry};
 use super::NONE;
 use crate::camera::{Camera, PLANES};
 use crate::error::{Error, Result};
-use crate::pager::pool::{holders_for, BlockLoader, BufferPool, Direction};
+use crate::format::metanode::{parse_block, BlockView, MetaNodeFile, MnNode, MntEntry};
+use crate::format::{self, FileKind};
+use crate::pager::pool::{Direction, Urgent};
+use crate::pager::{NoTrace, PageObserver};
 
 /// Where meta-nodes come from. `with_block` gives `None` when the block is not in memory (a
 /// miss for the caller); the counting calls are the buffer pool's protocol and no-ops elsewhere.
@@ -61,37 +62,9 @@ pub trait MetaStore {
     }
 }
 
-/// The "Virt" store: every block straight from the memory map; the OS pages the file in and
-/// `pages_read` counts major faults.
-pub struct VirtStore<'a> {
-    file: &'a MetaNodeFile,
-    faults_at_start: u64,
-}
-
-impl<'a> VirtStore<'a> {
-    pub fn new(file: &'a MetaNodeFile) -> VirtStore<'a> {
-        VirtStore { file, faults_at_start: crate::sys::mem::page_faults().0 }
-    }
-}
-
-impl MetaStore for VirtStore<'_> {
-    fn with_block<R>(&mut self, meta: u32, f: impl FnOnce(BlockView<'_>) -> R) -> Result<Option<R>> {
-        let view = parse_block(self.file, meta, self.file.mapped_block(meta))?;
-        Ok(Some(f(view)))
-    }
-
-    fn load_now(&mut self, _meta: u32) -> Result<()> {
-        Ok(())
-    }
-
-    fn pages_read(&self) -> u64 {
-        crate::sys::mem::page_faults().0 - self.faults_at_start
-    }
-}
-
 /// An inconsistency in a meta-node file's blocks found while navigating, naming the file.
 fn corrupt(path: &Path, problem: String) -> Error {
-    Error::BadVdt { path: path.to_path_buf(), problem: format!("corrupt meta-node file: {problem}") }
+    format::corrupt(path, FileKind::MetaNode, problem)
 }
 
 /// Whether `child` records `parent` (at `parent_pos`) as its parent, and the parent sits at the
@@ -101,14 +74,6 @@ fn is_parent_of(parent: &MnNode, parent_pos: [f32; 3], child: &MnNode, first_pos
         && child.parent_switch.to_bits() == parent.switch.to_bits()
         && child.parent_radius.to_bits() == parent.radius.to_bits()
         && parent_pos.map(f32::to_bits) == first_pos.map(f32::to_bits)
-}
-
-/// Parses a block, turning a malformed one into an error naming the file.
-pub fn parse_block<'b>(file: &MetaNodeFile, meta: u32, bytes: &'b [u8]) -> Result<BlockView<'b>> {
-    BlockView::parse(bytes, file.header().metanodes as u32).map_err(|problem| Error::BadHeader {
-        path: file.path().to_path_buf(),
-        problem: format!("meta-node {meta}: {problem}"),
-    })
 }
 
 /// What one frame did.
@@ -253,17 +218,11 @@ impl<S: MetaStore> Navigator<S> {
             end += a.node.leaves as u64;
         }
         if end != leaves as u64 || nav.active.len() != nav.usage.values().map(|&u| u as usize).sum::<usize>() {
-            return Err(Error::BadHeader {
-                path: file.path().to_path_buf(),
-                problem: "the roots do not cover every leaf".into(),
-            });
+            return Err(corrupt(file.path(), "the roots do not cover every leaf".into()));
         }
         for t in file.base_triangles() {
             if t.iter().any(|&d| d >= leaves) {
-                return Err(Error::BadHeader {
-                    path: file.path().to_path_buf(),
-                    problem: "base triangle corner out of range".into(),
-                });
+                return Err(corrupt(file.path(), "base triangle corner out of range".into()));
             }
             nav.add_triangle(*t);
         }
@@ -807,103 +766,119 @@ fn flipped(before: &[[f32; 3]; 3], after: &[[f32; 3]; 3]) -> bool {
     n0.length_squared() > 0.0 && n1.length_squared() > 0.0 && n0.dot(n1) <= 0.0
 }
 
-/// Loads meta-node blocks with `pread` for the buffer pool.
-pub struct MetaLoader {
-    file: Arc<MetaNodeFile>,
-    pages_read: AtomicU64,
-}
-
-impl BlockLoader for MetaLoader {
-    type Block = Vec<u32>;
-
-    fn load(&self, id: u32, recycled: Option<Vec<u32>>) -> Result<Vec<u32>> {
-        let mut buf = recycled.unwrap_or_default();
-        self.file.read_block(id, &mut buf)?;
-        // Validate once, when read, so a corrupt block is an error here rather than later.
-        parse_block(&self.file, id, bytemuck::cast_slice(&buf))?;
-        self.pages_read.fetch_add(self.file.block_pages(id), Ordering::Relaxed);
-        Ok(buf)
-    }
-}
-
-/// The "Ext" store: the buffer pool of K place holders with its I/O thread (the paper's
-/// external-memory support).
-pub struct ExtStore {
-    pool: BufferPool<MetaLoader>,
+/// The meta-node store: blocks through the file's [`crate::pager::Pager`], whatever its access.
+/// With the map or positioned reads every block is there when asked for (the OS pages it in,
+/// the navigation waits: the paper's "Virt"); every read is reported to the observer. With the
+/// buffer pool ("Ext") a block no holder has is a miss, and the store speaks the pool's
+/// protocol: usage counts for the blocks of active nodes, references for prefetch, urgent
+/// prefetch for missed switches.
+pub struct PagedStore<'a, O: PageObserver = NoTrace> {
+    file: &'a MetaNodeFile,
+    observer: O,
     /// Blocks asked for urgently, held by a reference until a node in them is activated (or for
     /// [`URGENT_HOLD_FRAMES`]): an urgently loaded block nobody references yet would sit first on
     /// the free list, and the next load would take its holder before the navigator gets to it.
     urgent: HashMap<u32, u64>,
     frame: u64,
+    faults_at_start: u64,
 }
 
 /// How long an urgent load is held for the switch that asked for it.
 const URGENT_HOLD_FRAMES: u64 = 4;
 
-impl ExtStore {
-    /// A pool of as many holders as `memory_bytes` allows for this file's largest block.
-    pub fn new(file: Arc<MetaNodeFile>, memory_bytes: u64) -> Result<ExtStore> {
-        let holders = holders_for(memory_bytes, file.header().holder_bytes.max(1))?;
-        ExtStore::with_holders(file, holders)
-    }
-
-    pub fn with_holders(file: Arc<MetaNodeFile>, holders: usize) -> Result<ExtStore> {
-        let loader = MetaLoader { file, pages_read: AtomicU64::new(0) };
-        Ok(ExtStore { pool: BufferPool::new(loader, holders)?, urgent: HashMap::new(), frame: 0 })
-    }
-
-    pub fn pool(&self) -> &BufferPool<MetaLoader> {
-        &self.pool
+impl<'a> PagedStore<'a, NoTrace> {
+    pub fn new(file: &'a MetaNodeFile) -> PagedStore<'a, NoTrace> {
+        PagedStore::observed(file, NoTrace)
     }
 }
 
-impl MetaStore for ExtStore {
+impl<'a, O: PageObserver> PagedStore<'a, O> {
+    /// A store whose reads (map and read access) are reported to `observer`.
+    pub fn observed(file: &'a MetaNodeFile, observer: O) -> PagedStore<'a, O> {
+        PagedStore {
+            file,
+            observer,
+            urgent: HashMap::new(),
+            frame: 0,
+            faults_at_start: crate::sys::mem::page_faults().0,
+        }
+    }
+
+    pub fn file(&self) -> &'a MetaNodeFile {
+        self.file
+    }
+
+    pub fn observer(&self) -> &O {
+        &self.observer
+    }
+}
+
+impl<O: PageObserver> MetaStore for PagedStore<'_, O> {
     fn with_block<R>(&mut self, meta: u32, f: impl FnOnce(BlockView<'_>) -> R) -> Result<Option<R>> {
-        let Some(block) = self.pool.get(meta) else { return Ok(None) };
-        let view = parse_block(&self.pool.loader().file, meta, bytemuck::cast_slice(&block))?;
+        let block = match self.file.pager().pool() {
+            Some(pool) => match pool.get(meta) {
+                Some(b) => crate::pager::Block::Pooled(b),
+                None => return Ok(None),
+            },
+            None => {
+                let block = self.file.block(meta)?;
+                if O::TRACES {
+                    let e = self.file.pager().extent(meta)?;
+                    self.observer.read(e.offset, e.bytes);
+                }
+                block
+            }
+        };
+        let view = parse_block(self.file, meta, &block)?;
         Ok(Some(f(view)))
     }
 
     fn load_now(&mut self, meta: u32) -> Result<()> {
+        let Some(pool) = self.file.pager().pool() else { return Ok(()) };
         // A reference keeps the block off the free list once loaded, so the prefetches queued
         // behind the urgent load cannot take its holder before the usage count pins it.
-        self.pool.reference(meta, 1);
-        self.pool.request_urgent(meta, Direction::Up);
-        self.pool.drain()?;
-        let pinned = self.pool.use_block(meta, 1);
-        self.pool.reference(meta, -1);
+        pool.reference(meta, 1);
+        pool.request_urgent(meta, Direction::Up);
+        pool.drain()?;
+        let pinned = pool.use_block(meta, 1);
+        pool.reference(meta, -1);
         if !pinned {
             return Err(Error::InvalidArgument(format!(
                 "the buffer pool's {} place holders cannot hold the root meta-nodes; give it more memory",
-                self.pool.holders()
+                pool.holders()
             )));
         }
         Ok(())
     }
 
     fn use_block(&mut self, meta: u32, delta: i32) -> bool {
-        let ok = self.pool.use_block(meta, delta);
+        let Some(pool) = self.file.pager().pool() else { return true };
+        let ok = pool.use_block(meta, delta);
         if ok && delta > 0 && self.urgent.remove(&meta).is_some() {
-            self.pool.reference(meta, -1); // the usage count holds it now
+            pool.reference(meta, -1); // the usage count holds it now
         }
         ok
     }
 
     fn reference(&mut self, meta: u32, delta: i32) {
-        self.pool.reference(meta, delta);
+        if let Some(pool) = self.file.pager().pool() {
+            pool.reference(meta, delta);
+        }
     }
 
     fn request_urgent(&mut self, meta: u32, up: bool) {
-        let asked = self.pool.request_urgent(meta, if up { Direction::Up } else { Direction::Down });
-        if asked != crate::pager::pool::Urgent::Refused && !self.urgent.contains_key(&meta) {
-            self.pool.reference(meta, 1);
+        let Some(pool) = self.file.pager().pool() else { return };
+        let asked = pool.request_urgent(meta, if up { Direction::Up } else { Direction::Down });
+        if asked != Urgent::Refused && !self.urgent.contains_key(&meta) {
+            pool.reference(meta, 1);
             self.urgent.insert(meta, self.frame);
         }
     }
 
     fn end_frame(&mut self) {
         self.frame += 1;
-        let (pool, frame) = (&self.pool, self.frame);
+        let Some(pool) = self.file.pager().pool() else { return };
+        let frame = self.frame;
         self.urgent.retain(|&meta, &mut asked| {
             let keep = frame - asked < URGENT_HOLD_FRAMES;
             if !keep {
@@ -913,12 +888,17 @@ impl MetaStore for ExtStore {
         });
     }
 
+    /// Pages read from the file: the pool's and the positioned reads'; with the map, the
+    /// process's major faults since the store was made.
     fn pages_read(&self) -> u64 {
-        self.pool.loader().pages_read.load(Ordering::Relaxed)
+        match self.file.pager().access() {
+            crate::pager::Access::Map => crate::sys::mem::page_faults().0 - self.faults_at_start,
+            _ => self.file.pager().reads().pages,
+        }
     }
 
     fn second_chance_hits(&self) -> u64 {
-        self.pool.stats().second_chance_hits
+        self.file.pager().pool().map_or(0, |p| p.stats().second_chance_hits)
     }
 }
 
@@ -1055,7 +1035,7 @@ mod tests {
         let (_d, f, nodes, tris) = file(12, BlockingOptions { levels_per_node: 3, page_bytes: 512 });
         assert!(f.header().metanodes > 10, "small pages give many meta-nodes");
         let mut nav =
-            Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() })
+            Navigator::new(&f, PagedStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() })
                 .unwrap();
         let roots = nodes.iter().filter(|v| v.parent == NONE).count();
         assert_eq!(nav.active_nodes(), roots);
@@ -1122,7 +1102,7 @@ mod tests {
         let (nodes, tris, base, _) = naive_forest(side);
         let (_d, f, _, _) = file(side, BlockingOptions { levels_per_node: 2, page_bytes: 512 });
         let mut nav =
-            Navigator::new(&f, VirtStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() })
+            Navigator::new(&f, PagedStore::new(&f), NavOptions { check_foldover: true, ..NavOptions::default() })
                 .unwrap();
         let mut seed = 7u64;
         let mut rnd = || {
@@ -1153,8 +1133,13 @@ mod tests {
         let side = 14;
         let (nodes, tris, base, _) = naive_forest(side);
         let (_d, f, _, _) = file(side, BlockingOptions { levels_per_node: 2, page_bytes: 512 });
-        let f = Arc::new(f);
         let metas = f.header().metanodes as usize;
+        // A pool of `holders` place holders (and the staging buffer) over the same file.
+        let pooled = |holders: usize| {
+            let bytes = (holders as u64 + 1) * f.header().holder_bytes;
+            MetaNodeFile::open_with(f.path(), crate::pager::Access::Pool { bytes }).unwrap()
+        };
+        let pool_of = |nav: &Navigator<PagedStore<'_>>| nav.store().file().pager().pool().unwrap().stats();
         let views: Vec<(Camera, f64)> = {
             let mut seed = 99u64;
             let mut rnd = || {
@@ -1171,14 +1156,14 @@ mod tests {
         };
         // Room for every block, and the I/O thread drained before each frame: no misses, the same
         // cuts as the map.
-        let mut virt = Navigator::new(&f, VirtStore::new(&f), NavOptions::default()).unwrap();
-        let mut ext =
-            Navigator::new(&f, ExtStore::with_holders(f.clone(), metas + 4).unwrap(), NavOptions::default()).unwrap();
+        let mut virt = Navigator::new(&f, PagedStore::new(&f), NavOptions::default()).unwrap();
+        let roomy = pooled(metas + 4);
+        let mut ext = Navigator::new(&roomy, PagedStore::new(&roomy), NavOptions::default()).unwrap();
         for (cam, tol) in &views {
             // Converge: a frame that misses retries once its urgent loads are in.
             virt.update(cam, *tol).unwrap();
             for _ in 0..64 {
-                ext.store().pool().drain().unwrap();
+                roomy.pager().pool().unwrap().drain().unwrap();
                 if ext.update(cam, *tol).unwrap().misses == 0 {
                     break;
                 }
@@ -1188,28 +1173,25 @@ mod tests {
         // A tiny pool: misses happen, the bookkeeping stays right, nothing in use is evicted,
         // whichever blocks are prefetched.
         for prefetch in [Prefetch::Paper, Prefetch::Parent, Prefetch::Frontier] {
-            let mut tiny = Navigator::new(
-                &f,
-                ExtStore::with_holders(f.clone(), 16).unwrap(),
-                NavOptions { check_foldover: true, prefetch },
-            )
-            .unwrap();
+            let small = pooled(16);
+            let mut tiny =
+                Navigator::new(&small, PagedStore::new(&small), NavOptions { check_foldover: true, prefetch }).unwrap();
             let mut misses = 0;
             for (k, (cam, tol)) in views.iter().enumerate() {
                 let s = tiny.update(cam, *tol).unwrap();
                 misses += s.misses;
                 tiny.check().unwrap();
-                tiny.store().pool().check_invariants().unwrap();
+                small.pager().pool().unwrap().check_invariants().unwrap();
                 let mut got = tiny.triangle_leaves();
                 got.sort();
                 assert_eq!(got, expected(&nodes, &tris, base, &tiny.active_ids()));
                 if k % 3 == 0 {
-                    tiny.store().pool().drain().unwrap();
+                    small.pager().pool().unwrap().drain().unwrap();
                 }
             }
             assert!(misses > 0, "16 holders for {metas} meta-nodes must miss");
             assert_eq!(tiny.foldovers(), 0);
-            let stats = tiny.store().pool().stats();
+            let stats = pool_of(&tiny);
             assert!(stats.disk_reads > 8 && stats.second_chance_hits > 0, "{prefetch:?}: {stats:?}");
         }
     }
@@ -1226,11 +1208,12 @@ mod tests {
         let at = std::mem::offset_of!(MnNode, parent_switch);
         let mut patched = 0;
         for (m, e) in f.mnt().iter().enumerate() {
-            let block = BlockView::parse(f.mapped_block(m as u32), f.header().metanodes as u32).unwrap();
+            let bytes_of_block = f.block(m as u32).unwrap();
+            let block = BlockView::parse(&bytes_of_block, f.header().metanodes as u32).unwrap();
             for (k, v) in block.nodes.iter().enumerate() {
                 if !v.is_root() {
                     let o = e.offset as usize
-                        + crate::metanode::blocking::BLOCK_HEADER_BYTES
+                        + crate::format::metanode::BLOCK_HEADER_BYTES
                         + k * std::mem::size_of::<MnNode>()
                         + at;
                     bytes[o..o + 4].copy_from_slice(&0f32.to_le_bytes());
@@ -1242,7 +1225,7 @@ mod tests {
         let path = dir.path().join("bad-copies.rmn");
         std::fs::write(&path, &bytes).unwrap();
         let bad = MetaNodeFile::open(&path).unwrap();
-        let mut nav = Navigator::new(&bad, VirtStore::new(&bad), NavOptions::default()).unwrap();
+        let mut nav = Navigator::new(&bad, PagedStore::new(&bad), NavOptions::default()).unwrap();
         let e = nav.update(&camera([5.5, -30.0, 40.0], [5.5, 5.5, 0.0]), 1e-4).expect_err("an error").to_string();
         assert!(e.contains("bad-copies.rmn") && e.contains("copies of it differ") && !e.contains('\n'), "{e}");
     }

@@ -1,29 +1,41 @@
-//! The pager shared by every backend (DESIGN.md, "The pager"): a read-only file seen as
-//! fixed-size pages.
+//! The pager: how every backend reads its file. The terrain's vertex records, the meta-node
+//! trees' blocks and the disk pages all come through a [`Pager`], which sees a file as numbered
+//! blocks (a [`BlockTable`]: a terrain's runs of records, a meta-node, a page) and reads them in
+//! one of three ways ([`Access`]):
 //!
-//! - **Mapped** ([`crate::format::terrain::TerrainFile`]'s memmap2 view): the OS pages the file in; the
-//!   terrain paper's choice. [`drop_from_page_cache`] and `TerrainFile::advise_random` set up cold,
-//!   readahead-free runs whose faults [`crate::sys::mem::page_faults`] counts (`getrusage`).
-//! - **Instrumented** ([`PagedRecords`] with a [`PageObserver`]): every record read reports its
-//!   page to an observer, such as [`LruCache`], a deterministic, machine-independent model of a
-//!   page cache of a given size. With [`NoTrace`] the observer compiles to nothing, so the plain
-//!   path costs what reading the slice costs.
-//! - The **pooled** mode (explicit place holders, second chance, an I/O thread) is
-//!   [`crate::pager::pool`], generic over what a block is; the meta-node backend uses it.
+//! - **map**: a read-only memory map; the OS pages the file in and blocks are borrowed in place.
+//!   The terrain paper's choice, and the meta-node paper's "Virt" column.
+//! - **read**: a positioned read (`pread`) of each block when it is wanted, with no cache of our
+//!   own: the OS page cache is the only one. The disk-page paper's fetch.
+//! - **pool**: an explicit buffer pool ([`pool::BufferPool`], El-Sana & Chiang §3.3) of as many
+//!   block-sized place holders as a memory budget allows, with an I/O thread, speculative and
+//!   urgent prefetch. The meta-node paper's "Ext" column.
+//!
+//! Bytes come from a [`source::Source`] (a map or a file read with `pread`). What a backend reads
+//! is reported to a [`observer::PageObserver`], which counts page faults by a model
+//! ([`observer::LruTrace`]) or from the OS ([`observer::OsFaults`]); [`observer::NoTrace`]
+//! compiles to nothing, so the plain path pays nothing for the experiments.
 
+pub mod lru;
+pub mod observer;
+pub mod os;
 pub mod pool;
 pub mod source;
 
-use std::collections::{HashMap, HashSet};
-use std::path::Path;
-use std::sync::Mutex;
+use std::ops::Deref;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::format::terrain::Record;
-use crate::refine::RecordSource;
+pub use lru::{CacheStats, LruCache};
+pub use observer::{Faults, Granules, LruTrace, NoTrace, OsFaults, PageObserver};
+pub use os::{drop_from_page_cache, MemoryCap};
+use pool::{holders_for, BlockLoader, BufferPool};
+use source::{Source, SourceKind};
 
-/// Page size and memory budget, validated: the page size is a power of two, the budget holds at
-/// least one page.
+/// Page size, validated: a power of two.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PageGeometry {
     pub page_bytes: u64,
@@ -50,301 +62,391 @@ impl PageGeometry {
     }
 }
 
-/// Counts of a cache model.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub struct CacheStats {
-    pub hits: u64,
-    /// Misses: page faults.
-    pub misses: u64,
-    pub evictions: u64,
-    /// Different pages ever touched.
-    pub distinct_pages: u64,
+/// How a pager reads its file's blocks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase", tag = "mode")]
+pub enum Access {
+    /// A read-only memory map (the OS pages it in).
+    Map,
+    /// A positioned read of each block when it is wanted; only the OS caches.
+    Read,
+    /// A buffer pool of `bytes` of place holders with an I/O thread.
+    Pool { bytes: u64 },
 }
 
-const NIL: u32 = u32::MAX;
+impl Access {
+    /// The names the command line takes.
+    pub const NAMES: [&'static str; 3] = ["map", "read", "pool"];
 
-/// A least-recently-used page cache of a fixed number of pages: a hash map from page to slot and
-/// an intrusive doubly-linked list over the slots, so a touch is O(1).
-pub struct LruCache {
-    capacity: usize,
-    slots: HashMap<u64, u32>,
-    page: Vec<u64>,
-    prev: Vec<u32>,
-    next: Vec<u32>,
-    /// Most and least recently used slots.
-    head: u32,
-    tail: u32,
-    seen: HashSet<u64>,
-    stats: CacheStats,
+    pub fn name(self) -> &'static str {
+        match self {
+            Access::Map => "map",
+            Access::Read => "read",
+            Access::Pool { .. } => "pool",
+        }
+    }
+
+    /// The source this access reads from.
+    pub fn source_kind(self) -> SourceKind {
+        match self {
+            Access::Map => SourceKind::Map,
+            Access::Read | Access::Pool { .. } => SourceKind::Read,
+        }
+    }
 }
 
-impl LruCache {
-    /// A cache of `memory_bytes / page_bytes` pages (at least one page, else an error).
-    pub fn new(memory_bytes: u64, geometry: PageGeometry) -> Result<LruCache> {
-        let pages = memory_bytes / geometry.page_bytes;
-        if pages == 0 {
-            return Err(Error::InvalidArgument(format!(
-                "memory budget of {memory_bytes} bytes is smaller than one {}-byte page",
-                geometry.page_bytes
-            )));
+/// Where a block lies in its file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Extent {
+    pub offset: u64,
+    pub bytes: u64,
+}
+
+/// A file seen as numbered blocks.
+pub trait BlockTable: Send + Sync + 'static {
+    /// Blocks `0..blocks()`.
+    fn blocks(&self) -> u32;
+    /// Block `id`'s bytes in the file (`None` out of range).
+    fn extent(&self, id: u32) -> Option<Extent>;
+    /// The largest block (a place holder's size).
+    fn max_block_bytes(&self) -> u64;
+    /// The file's page size: a block of `b` bytes costs ⌈b / page⌉ page reads.
+    fn page_bytes(&self) -> u64 {
+        4096
+    }
+}
+
+/// Blocks of `block_bytes` from byte `first` to byte `end` (the last one may be shorter), in a
+/// file of `page_bytes` pages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FixedBlocks {
+    pub first: u64,
+    pub block_bytes: u64,
+    pub end: u64,
+    pub page_bytes: u64,
+}
+
+impl BlockTable for FixedBlocks {
+    fn blocks(&self) -> u32 {
+        (self.end.saturating_sub(self.first)).div_ceil(self.block_bytes.max(1)).min(u32::MAX as u64) as u32
+    }
+
+    fn extent(&self, id: u32) -> Option<Extent> {
+        let offset = self.first.checked_add((id as u64).checked_mul(self.block_bytes)?)?;
+        (offset < self.end).then(|| Extent { offset, bytes: self.block_bytes.min(self.end - offset) })
+    }
+
+    fn max_block_bytes(&self) -> u64 {
+        self.block_bytes.min(self.end.saturating_sub(self.first))
+    }
+
+    fn page_bytes(&self) -> u64 {
+        self.page_bytes
+    }
+}
+
+/// Blocks listed one by one (the meta-node table), in a file of `page_bytes` pages.
+#[derive(Clone, Debug, Default)]
+pub struct ExtentTable {
+    pub extents: Vec<Extent>,
+    pub page_bytes: u64,
+}
+
+impl BlockTable for ExtentTable {
+    fn blocks(&self) -> u32 {
+        self.extents.len().min(u32::MAX as usize) as u32
+    }
+
+    fn extent(&self, id: u32) -> Option<Extent> {
+        self.extents.get(id as usize).copied()
+    }
+
+    fn max_block_bytes(&self) -> u64 {
+        self.extents.iter().map(|e| e.bytes).max().unwrap_or(0)
+    }
+
+    fn page_bytes(&self) -> u64 {
+        self.page_bytes
+    }
+}
+
+/// Storage for one block, 8-byte aligned so that readers can view records and nodes in place.
+#[derive(Clone, Debug, Default)]
+pub struct BlockBuf {
+    words: Vec<u64>,
+    len: usize,
+}
+
+impl BlockBuf {
+    /// Sets the length to `len` bytes (new bytes are zero).
+    pub fn resize(&mut self, len: usize) {
+        self.words.resize(len.div_ceil(8), 0);
+        self.len = len;
+    }
+
+    pub fn bytes(&self) -> &[u8] {
+        &bytemuck::cast_slice(&self.words)[..self.len]
+    }
+
+    pub fn bytes_mut(&mut self) -> &mut [u8] {
+        &mut bytemuck::cast_slice_mut(&mut self.words)[..self.len]
+    }
+}
+
+/// A block's bytes: borrowed from the map, read into storage of its own, or shared with the pool.
+pub enum Block<'a> {
+    Mapped(&'a [u8]),
+    Read(BlockBuf),
+    Pooled(Arc<BlockBuf>),
+}
+
+impl Deref for Block<'_> {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            Block::Mapped(b) => b,
+            Block::Read(b) => b.bytes(),
+            Block::Pooled(b) => b.bytes(),
         }
-        Ok(Self::with_pages(pages.min(u32::MAX as u64 - 1) as usize))
+    }
+}
+
+/// Blocks and bytes a pager read from its source (read and pool modes; what a map reads is the
+/// OS's page faults).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct ReadStats {
+    pub blocks: u64,
+    /// Pages of the file the blocks cover (a block costs ⌈bytes / page⌉).
+    pub pages: u64,
+    pub bytes: u64,
+}
+
+#[derive(Debug, Default)]
+struct ReadCounter {
+    blocks: AtomicU64,
+    pages: AtomicU64,
+    bytes: AtomicU64,
+}
+
+impl ReadCounter {
+    fn add(&self, table: &dyn BlockTable, blocks: u64, bytes: u64) {
+        self.blocks.fetch_add(blocks, Ordering::Relaxed);
+        self.pages.fetch_add(bytes.div_ceil(table.page_bytes().max(1)), Ordering::Relaxed);
+        self.bytes.fetch_add(bytes, Ordering::Relaxed);
     }
 
-    /// A cache of `pages` pages (≥ 1).
-    pub fn with_pages(pages: usize) -> LruCache {
-        let capacity = pages.max(1);
-        LruCache {
-            capacity,
-            slots: HashMap::new(),
-            page: Vec::new(),
-            prev: Vec::new(),
-            next: Vec::new(),
-            head: NIL,
-            tail: NIL,
-            seen: HashSet::new(),
-            stats: CacheStats::default(),
+    fn get(&self) -> ReadStats {
+        ReadStats {
+            blocks: self.blocks.load(Ordering::Relaxed),
+            pages: self.pages.load(Ordering::Relaxed),
+            bytes: self.bytes.load(Ordering::Relaxed),
         }
     }
+}
 
-    pub fn capacity_pages(&self) -> usize {
-        self.capacity
+/// Reads a table's blocks from a source, for the buffer pool.
+pub struct SourceLoader {
+    source: Arc<dyn Source>,
+    table: Arc<dyn BlockTable>,
+    reads: ReadCounter,
+}
+
+impl SourceLoader {
+    fn read(&self, id: u32, buf: &mut BlockBuf) -> Result<()> {
+        let e = extent_of(&*self.source, &*self.table, id)?;
+        buf.resize(e.bytes as usize);
+        self.source.read_at(e.offset, buf.bytes_mut())?;
+        self.reads.add(&*self.table, 1, e.bytes);
+        Ok(())
     }
+}
 
-    pub fn stats(&self) -> CacheStats {
-        self.stats
+impl BlockLoader for SourceLoader {
+    type Block = BlockBuf;
+    fn load(&self, id: u32, recycled: Option<BlockBuf>) -> Result<BlockBuf> {
+        let mut buf = recycled.unwrap_or_default();
+        self.read(id, &mut buf)?;
+        Ok(buf)
     }
+}
 
-    /// Whether `page` is resident (does not count as a touch).
-    pub fn contains(&self, page: u64) -> bool {
-        self.slots.contains_key(&page)
-    }
+fn extent_of(source: &dyn Source, table: &dyn BlockTable, id: u32) -> Result<Extent> {
+    table.extent(id).ok_or_else(|| {
+        Error::InvalidArgument(format!(
+            "{}: block {id} out of range ({} blocks)",
+            source.path().display(),
+            table.blocks()
+        ))
+    })
+}
 
-    fn unlink(&mut self, s: u32) {
-        let (p, n) = (self.prev[s as usize], self.next[s as usize]);
-        if p != NIL {
-            self.next[p as usize] = n;
-        } else {
-            self.head = n;
-        }
-        if n != NIL {
-            self.prev[n as usize] = p;
-        } else {
-            self.tail = p;
-        }
-    }
+enum Mode {
+    Map,
+    Read(ReadCounter),
+    Pool(BufferPool<SourceLoader>),
+}
 
-    fn push_front(&mut self, s: u32) {
-        self.prev[s as usize] = NIL;
-        self.next[s as usize] = self.head;
-        if self.head != NIL {
-            self.prev[self.head as usize] = s;
-        }
-        self.head = s;
-        if self.tail == NIL {
-            self.tail = s;
-        }
-    }
+/// A file's blocks, read one of the three ways.
+pub struct Pager {
+    source: Arc<dyn Source>,
+    table: Arc<dyn BlockTable>,
+    access: Access,
+    mode: Mode,
+}
 
-    /// References `page`: a hit moves it to the front; a miss (a fault) loads it, evicting the
-    /// least recently used page when full. Returns whether it was a hit.
-    pub fn touch(&mut self, page: u64) -> bool {
-        if let Some(&s) = self.slots.get(&page) {
-            self.stats.hits += 1;
-            if self.head != s {
-                self.unlink(s);
-                self.push_front(s);
+impl Pager {
+    /// A pager over `source`'s blocks as `table` numbers them. `Map` needs a mapped source; a
+    /// pool gets as many place holders as `bytes` allows for the table's largest block.
+    pub fn new(source: Arc<dyn Source>, table: Arc<dyn BlockTable>, access: Access) -> Result<Pager> {
+        let mode = match access {
+            Access::Map => {
+                if source.mapped().is_none() {
+                    return Err(Error::InvalidArgument(format!(
+                        "{}: mapped access needs a mapped source",
+                        source.path().display()
+                    )));
+                }
+                Mode::Map
             }
-            return true;
-        }
-        self.stats.misses += 1;
-        if self.seen.insert(page) {
-            self.stats.distinct_pages += 1;
-        }
-        let s = if self.page.len() < self.capacity {
-            self.page.push(page);
-            self.prev.push(NIL);
-            self.next.push(NIL);
-            (self.page.len() - 1) as u32
-        } else {
-            let s = self.tail;
-            self.unlink(s);
-            self.slots.remove(&self.page[s as usize]);
-            self.stats.evictions += 1;
-            self.page[s as usize] = page;
-            s
+            Access::Read => Mode::Read(ReadCounter::default()),
+            Access::Pool { bytes } => {
+                let holders = holders_for(bytes, table.max_block_bytes().max(1))?;
+                let loader = SourceLoader {
+                    source: Arc::clone(&source),
+                    table: Arc::clone(&table),
+                    reads: ReadCounter::default(),
+                };
+                Mode::Pool(BufferPool::new(loader, holders)?)
+            }
         };
-        self.slots.insert(page, s);
-        self.push_front(s);
-        false
-    }
-}
-
-/// Receives the page of every record read. `&self` because record sources are shared (`Sync`).
-pub trait PageObserver: Sync {
-    /// Whether anything is observed; `false` lets the compiler drop the page arithmetic.
-    const ACTIVE: bool;
-    fn touch(&self, page: u64);
-}
-
-/// Observes nothing: the plain, zero-cost path.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct NoTrace;
-
-impl PageObserver for NoTrace {
-    const ACTIVE: bool = false;
-    #[inline(always)]
-    fn touch(&self, _page: u64) {}
-}
-
-/// Feeds an [`LruCache`] and records which record slots were read (for the lower bound).
-/// Single-threaded refinement is expected; the lock is uncontended.
-pub struct LruTrace {
-    state: Mutex<TraceState>,
-}
-
-struct TraceState {
-    cache: LruCache,
-    /// The last page touched: repeated reads of one page count once (they cannot fault).
-    last_page: u64,
-}
-
-impl LruTrace {
-    pub fn new(cache: LruCache) -> LruTrace {
-        LruTrace { state: Mutex::new(TraceState { cache, last_page: u64::MAX }) }
+        Ok(Pager { source, table, access, mode })
     }
 
-    pub fn stats(&self) -> CacheStats {
-        self.state.lock().unwrap_or_else(|p| p.into_inner()).cache.stats()
+    pub fn access(&self) -> Access {
+        self.access
     }
-}
 
-impl PageObserver for LruTrace {
-    const ACTIVE: bool = true;
-    fn touch(&self, page: u64) {
-        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
-        if s.last_page != page {
-            s.last_page = page;
-            s.cache.touch(page);
+    pub fn source(&self) -> &dyn Source {
+        &*self.source
+    }
+
+    pub fn table(&self) -> &dyn BlockTable {
+        &*self.table
+    }
+
+    /// The whole file in memory (map access only).
+    pub fn mapped(&self) -> Option<&[u8]> {
+        match self.mode {
+            Mode::Map => self.source.mapped(),
+            _ => None,
         }
     }
-}
 
-/// A bit per record slot: which records a run read.
-pub struct RecordSet {
-    bits: Vec<std::sync::atomic::AtomicU64>,
-}
-
-impl RecordSet {
-    pub fn new(records: usize) -> RecordSet {
-        RecordSet { bits: (0..records.div_ceil(64)).map(|_| std::sync::atomic::AtomicU64::new(0)).collect() }
+    /// The buffer pool (pool access only), for the meta-node navigator's protocol (usage and
+    /// reference counts, urgent prefetch).
+    pub fn pool(&self) -> Option<&BufferPool<SourceLoader>> {
+        match &self.mode {
+            Mode::Pool(p) => Some(p),
+            _ => None,
+        }
     }
 
-    #[inline]
-    pub fn insert(&self, index: u64) {
-        let w = &self.bits[(index / 64) as usize];
-        w.fetch_or(1 << (index % 64), std::sync::atomic::Ordering::Relaxed);
+    /// Where block `id` lies in the file.
+    pub fn extent(&self, id: u32) -> Result<Extent> {
+        extent_of(&*self.source, &*self.table, id)
     }
 
-    pub fn len(&self) -> u64 {
-        self.bits.iter().map(|w| w.load(std::sync::atomic::Ordering::Relaxed).count_ones() as u64).sum()
+    /// Block `id`, now: borrowed from the map, read from the file, or from the pool (read on the
+    /// calling thread when no holder has it).
+    pub fn block(&self, id: u32) -> Result<Block<'_>> {
+        match &self.mode {
+            Mode::Map => {
+                let e = self.extent(id)?;
+                let map = self.source.mapped().expect("map access has a mapped source");
+                Ok(Block::Mapped(&map[e.offset as usize..(e.offset + e.bytes) as usize]))
+            }
+            Mode::Read(reads) => {
+                let e = self.extent(id)?;
+                let mut buf = BlockBuf::default();
+                buf.resize(e.bytes as usize);
+                self.source.read_at(e.offset, buf.bytes_mut())?;
+                reads.add(&*self.table, 1, e.bytes);
+                Ok(Block::Read(buf))
+            }
+            Mode::Pool(pool) => Ok(Block::Pooled(pool.get_or_load(id)?)),
+        }
     }
 
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
+    /// Block `id` if it can be had without waiting: always with map and read access; from the
+    /// pool only when a holder has it (otherwise an urgent load is queued and `None` returned).
+    pub fn try_block(&self, id: u32) -> Result<Option<Block<'_>>> {
+        match &self.mode {
+            Mode::Pool(pool) => match pool.get(id) {
+                Some(b) => Ok(Some(Block::Pooled(b))),
+                None => {
+                    pool.request_urgent(id, pool::Direction::Up);
+                    Ok(None)
+                }
+            },
+            _ => self.block(id).map(Some),
+        }
     }
-}
 
-/// The records of a terrain file's payload read through an observer: record `i` lives at byte
-/// `payload_offset + i · record_bytes` of the file.
-pub struct PagedRecords<'a, O: PageObserver> {
-    records: &'a [Record],
-    payload_offset: u64,
-    geometry: PageGeometry,
-    observer: &'a O,
-    read: Option<&'a RecordSet>,
-}
-
-impl<'a, O: PageObserver> PagedRecords<'a, O> {
-    pub fn new(
-        records: &'a [Record],
-        payload_offset: u64,
-        geometry: PageGeometry,
-        observer: &'a O,
-        read: Option<&'a RecordSet>,
-    ) -> Self {
-        PagedRecords { records, payload_offset, geometry, observer, read }
-    }
-}
-
-impl<O: PageObserver> RecordSource for PagedRecords<'_, O> {
-    #[inline(always)]
-    fn record(&self, index: u64) -> Record {
-        if O::ACTIVE {
-            let offset = self.payload_offset + index * std::mem::size_of::<Record>() as u64;
-            self.observer.touch(self.geometry.page_of(offset));
-            if let Some(r) = self.read {
-                r.insert(index);
+    /// Calls `f` with blocks `first .. first + count` in order. Read access reads the run with
+    /// one `pread` into `buf` (the blocks must be contiguous in the file, as pages are); map
+    /// access borrows each block; the pool hands over each block as [`block`](Self::block) does.
+    pub fn for_run(
+        &self,
+        first: u32,
+        count: u32,
+        buf: &mut BlockBuf,
+        mut f: impl FnMut(u32, &[u8]) -> Result<()>,
+    ) -> Result<()> {
+        if count == 0 {
+            return Ok(());
+        }
+        match &self.mode {
+            Mode::Read(reads) => {
+                let start = self.extent(first)?;
+                let last = self.extent(first + (count - 1))?;
+                let end = last.offset + last.bytes;
+                buf.resize((end - start.offset) as usize);
+                self.source.read_at(start.offset, buf.bytes_mut())?;
+                reads.add(&*self.table, count as u64, end - start.offset);
+                for id in first..first + count {
+                    let e = self.extent(id)?;
+                    let at = (e.offset - start.offset) as usize;
+                    f(id, &buf.bytes()[at..at + e.bytes as usize])?;
+                }
+                Ok(())
+            }
+            _ => {
+                for id in first..first + count {
+                    let b = self.block(id)?;
+                    f(id, &b)?;
+                }
+                Ok(())
             }
         }
-        self.records[index as usize]
     }
-}
 
-/// Evicts `path` from the OS page cache (`posix_fadvise(DONTNEED)`), so the next reads fault.
-/// Pages still mapped by a live mapping stay: drop the mapping first.
-pub fn drop_from_page_cache(path: &Path) -> Result<()> {
-    use std::os::unix::io::AsRawFd;
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    // SAFETY: plain system call on a file descriptor we own for the duration of the call.
-    let rc = unsafe { libc::posix_fadvise(file.as_raw_fd(), 0, 0, libc::POSIX_FADV_DONTNEED) };
-    if rc != 0 {
-        return Err(Error::io(path, std::io::Error::from_raw_os_error(rc)));
+    /// What this pager has read from its source so far (map access: nothing it can count).
+    pub fn reads(&self) -> ReadStats {
+        match &self.mode {
+            Mode::Map => ReadStats::default(),
+            Mode::Read(r) => r.get(),
+            Mode::Pool(p) => p.loader().reads.get(),
+        }
     }
-    Ok(())
-}
 
-/// A cgroup v1 memory limit on this process while the value lives (DESIGN.md: OS counts "under
-/// a cgroup memory limit where the machine allows one"). Charges made before the move stay where
-/// they were (v1 does not move them by default), so the limit applies to what is allocated and
-/// paged in afterwards: chiefly the page cache of the file a cold run maps.
-pub struct MemoryCap {
-    dir: std::path::PathBuf,
-    parent: std::path::PathBuf,
-}
-
-impl MemoryCap {
-    /// Creates a child of this process's memory cgroup limited to `limit_bytes` and moves the
-    /// process into it; says why where the machine has no writable cgroup v1 memory controller.
-    pub fn apply(limit_bytes: u64) -> Result<MemoryCap> {
-        let unsupported = |why: String| Error::InvalidArgument(format!("cannot set a memory cap: {why}"));
-        let cgroups =
-            std::fs::read_to_string("/proc/self/cgroup").map_err(|e| unsupported(format!("/proc/self/cgroup: {e}")))?;
-        let rel = cgroups
-            .lines()
-            .find_map(|l| {
-                let mut f = l.splitn(3, ':');
-                let (_, controllers, path) = (f.next()?, f.next()?, f.next()?);
-                controllers.split(',').any(|c| c == "memory").then(|| path.to_string())
-            })
-            .ok_or_else(|| unsupported("no cgroup v1 memory controller for this process".into()))?;
-        let parent = Path::new("/sys/fs/cgroup/memory").join(rel.trim_start_matches('/'));
-        let dir = parent.join(format!("relief.{}", std::process::id()));
-        std::fs::create_dir(&dir).map_err(|e| unsupported(format!("{}: {e}", dir.display())))?;
-        let cap = MemoryCap { dir, parent };
-        std::fs::write(cap.dir.join("memory.limit_in_bytes"), limit_bytes.to_string())
-            .map_err(|e| unsupported(format!("{}: {e}", cap.dir.join("memory.limit_in_bytes").display())))?;
-        std::fs::write(cap.dir.join("cgroup.procs"), std::process::id().to_string())
-            .map_err(|e| unsupported(format!("{}: {e}", cap.dir.join("cgroup.procs").display())))?;
-        Ok(cap)
+    /// No readahead (see [`Source::advise_random`]).
+    pub fn advise_random(&self) -> Result<()> {
+        self.source.advise_random()
     }
-}
 
-impl Drop for MemoryCap {
-    fn drop(&mut self) {
-        // Back to the parent group, then remove ours (empty once we left).
-        let _ = std::fs::write(self.parent.join("cgroup.procs"), std::process::id().to_string());
-        let _ = std::fs::remove_dir(&self.dir);
+    /// Drops the file from the OS page cache (see [`Source::evict`]); the pool keeps its blocks.
+    pub fn evict(&self) -> Result<()> {
+        self.source.evict()
     }
 }
 
@@ -352,74 +454,74 @@ impl Drop for MemoryCap {
 mod tests {
     use super::*;
 
-    #[test]
-    fn geometry_rejects_pages_that_are_not_powers_of_two() {
-        assert!(PageGeometry::new(4096).is_ok());
-        for bad in [0, 3, 4095, 6000] {
-            let e = PageGeometry::new(bad).unwrap_err().to_string();
-            assert!(e.contains("power of two"), "{e}");
-        }
-        let g = PageGeometry::new(4096).unwrap();
-        assert_eq!((g.page_of(4095), g.page_of(4096), g.pages_for(4097)), (0, 1, 2));
+    fn file_of(len: usize) -> (tempfile::TempDir, std::path::PathBuf, Vec<u8>) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("blocks.bin");
+        let bytes: Vec<u8> = (0..len).map(|i| (i * 31 % 253) as u8).collect();
+        std::fs::write(&path, &bytes).unwrap();
+        (dir, path, bytes)
     }
 
     #[test]
-    fn budget_must_hold_a_page() {
-        let g = PageGeometry::new(4096).unwrap();
-        let e = LruCache::new(4095, g).err().unwrap().to_string();
-        assert!(e.contains("smaller than one 4096-byte page"), "{e}");
-        assert_eq!(LruCache::new(3 * 4096 + 5, g).unwrap().capacity_pages(), 3);
-    }
-
-    /// Worked by hand: capacity 3, references 1 2 3 1 4 2 5 1 2 3.
-    ///  1 miss [1]; 2 miss [2 1]; 3 miss [3 2 1]; 1 hit [1 3 2]; 4 miss, evict 2 [4 1 3];
-    ///  2 miss, evict 3 [2 4 1]; 5 miss, evict 1 [5 2 4]; 1 miss, evict 4 [1 5 2];
-    ///  2 hit [2 1 5]; 3 miss, evict 5 [3 2 1].
-    #[test]
-    fn lru_matches_a_hand_worked_trace() {
-        let mut c = LruCache::with_pages(3);
-        let hits: Vec<bool> = [1, 2, 3, 1, 4, 2, 5, 1, 2, 3].iter().map(|&p| c.touch(p)).collect();
-        assert_eq!(hits, [false, false, false, true, false, false, false, false, true, false]);
-        assert_eq!(c.stats(), CacheStats { hits: 2, misses: 8, evictions: 5, distinct_pages: 5 });
-        for (p, resident) in [(3, true), (2, true), (1, true), (5, false), (4, false)] {
-            assert_eq!(c.contains(p), resident, "page {p}");
-        }
+    fn fixed_blocks_cover_the_range_and_the_last_is_short() {
+        let t = FixedBlocks { first: 100, block_bytes: 64, end: 300, page_bytes: 64 };
+        assert_eq!(t.blocks(), 4);
+        assert_eq!(t.extent(0), Some(Extent { offset: 100, bytes: 64 }));
+        assert_eq!(t.extent(3), Some(Extent { offset: 292, bytes: 8 }));
+        assert_eq!(t.extent(4), None);
+        assert_eq!(t.extent(u32::MAX), None);
     }
 
     #[test]
-    fn one_page_cache_faults_on_every_change() {
-        let mut c = LruCache::with_pages(1);
-        let trace = [7, 7, 8, 7, 7, 9];
-        let misses = trace.iter().filter(|&&p| !c.touch(p)).count();
-        assert_eq!(misses, 4);
-        assert_eq!(c.stats().evictions, 3);
-    }
-
-    #[test]
-    fn lru_agrees_with_a_naive_model_on_random_traces() {
-        // Naive LRU: a vector ordered by recency.
-        let mut seed = 0x9e3779b97f4a7c15u64;
-        for capacity in [1usize, 2, 5, 17] {
-            let mut c = LruCache::with_pages(capacity);
-            let mut naive: Vec<u64> = Vec::new();
-            for _ in 0..5000 {
-                seed ^= seed << 13;
-                seed ^= seed >> 7;
-                seed ^= seed << 17;
-                let p = seed % 40;
-                let hit = c.touch(p);
-                let pos = naive.iter().position(|&q| q == p);
-                assert_eq!(hit, pos.is_some());
-                if let Some(i) = pos {
-                    naive.remove(i);
-                } else if naive.len() == capacity {
-                    naive.pop();
-                }
-                naive.insert(0, p);
+    fn every_access_gives_the_same_bytes() {
+        let (_dir, path, bytes) = file_of(40_000);
+        let table: Arc<dyn BlockTable> =
+            Arc::new(FixedBlocks { first: 96, block_bytes: 4096, end: 40_000, page_bytes: 4096 });
+        for access in [Access::Map, Access::Read, Access::Pool { bytes: 6 * 4096 }] {
+            let pager = Pager::new(source::open(&path, access.source_kind()).unwrap(), table.clone(), access).unwrap();
+            for id in [0u32, 9, 3, 0, 9] {
+                let e = pager.extent(id).unwrap();
+                let want = &bytes[e.offset as usize..(e.offset + e.bytes) as usize];
+                assert_eq!(&*pager.block(id).unwrap(), want, "{access:?} block {id}");
             }
-            for p in 0..40 {
-                assert_eq!(c.contains(p), naive.contains(&p));
+            let mut seen = Vec::new();
+            let mut buf = BlockBuf::default();
+            pager
+                .for_run(2, 5, &mut buf, |id, b| {
+                    let e = pager.extent(id).unwrap();
+                    assert_eq!(b, &bytes[e.offset as usize..(e.offset + e.bytes) as usize]);
+                    seen.push(id);
+                    Ok(())
+                })
+                .unwrap();
+            assert_eq!(seen, [2, 3, 4, 5, 6]);
+            assert!(pager.block(10).is_err());
+            match access {
+                Access::Map => assert_eq!(pager.reads(), ReadStats::default()),
+                Access::Read => assert_eq!(pager.reads().blocks, 5 + 5),
+                // Blocks 0, 9, 3 read once each; the run reads 2, 4, 5, 6 (3 is held).
+                Access::Pool { .. } => assert_eq!(pager.reads().blocks, 3 + 4),
             }
         }
+    }
+
+    #[test]
+    fn the_pool_can_be_asked_without_waiting() {
+        let (_dir, path, _) = file_of(10 * 1024);
+        let table: Arc<dyn BlockTable> =
+            Arc::new(FixedBlocks { first: 0, block_bytes: 1024, end: 10 * 1024, page_bytes: 1024 });
+        let access = Access::Pool { bytes: 8 * 1024 };
+        let pager = Pager::new(source::open(&path, access.source_kind()).unwrap(), table, access).unwrap();
+        assert!(pager.try_block(4).unwrap().is_none(), "not resident: an urgent load is queued");
+        pager.pool().unwrap().drain().unwrap();
+        assert!(pager.try_block(4).unwrap().is_some());
+        let e = Pager::new(
+            source::open(&path, SourceKind::Read).unwrap(),
+            Arc::new(FixedBlocks { first: 0, block_bytes: 1024, end: 10 * 1024, page_bytes: 1024 }),
+            Access::Map,
+        )
+        .err()
+        .unwrap();
+        assert!(e.to_string().contains("mapped source"), "{e}");
     }
 }

@@ -541,6 +541,47 @@ impl<L: BlockLoader> BufferPool<L> {
         t.holders[h as usize].content.clone()
     }
 
+    /// Block `id` now, for readers that cannot wait for the I/O thread (a terrain refined to its
+    /// full depth, a fetch that must draw every page): from memory if a holder has it, else read
+    /// on the calling thread and installed in the first free holder, as an urgent load would be
+    /// (or returned without a holder when none is free). A block found idle on the free list is
+    /// moved to its end, so idle blocks are reused least recently used first.
+    pub fn get_or_load(&self, id: u32) -> Result<Arc<L::Block>> {
+        {
+            let mut t = lock(&self.shared.table);
+            t.stats.requests += 1;
+            if let Some(&h) = t.index.get(&id) {
+                t.stats.hits += 1;
+                if t.holders[h as usize].in_free {
+                    t.unlink_free(h);
+                    t.push_free(h);
+                }
+                if let Some(b) = t.holders[h as usize].content.clone() {
+                    return Ok(b);
+                }
+            }
+        }
+        let read = catch_unwind(AssertUnwindSafe(|| self.shared.loader.load(id, None)));
+        let block = match read {
+            Ok(r) => Arc::new(r?),
+            Err(_) => return Err(Error::Pool(format!("the block loader panicked reading block {id}"))),
+        };
+        let mut t = lock(&self.shared.table);
+        t.stats.disk_reads += 1;
+        if let Some(&h) = t.index.get(&id) {
+            // Loaded by another reader meanwhile: keep theirs.
+            if let Some(b) = t.holders[h as usize].content.clone() {
+                return Ok(b);
+            }
+        }
+        if let Some(h) = t.take_victim(Kind::Urgent) {
+            // An urgent load of the same block queued meanwhile is now stale.
+            t.queued.remove(&id);
+            let _ = t.install(h, id, Arc::clone(&block));
+        }
+        Ok(block)
+    }
+
     /// Adds `delta` to block `id`'s usage count (its active nodes). Raising it from 0 on a block
     /// on the free list takes the holder back (second chance); dropping both counts to 0 frees
     /// the holder to the end of the free list. Returns `false`, changing nothing, when the block

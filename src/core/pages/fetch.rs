@@ -4,20 +4,23 @@
 //! the pages whole and in order, and draw every triangle in them. There is no cache of our own:
 //! like the paper, the OS page cache is the only one, and each frame reads all its pages again.
 //!
-//! Reads are `pread`s of whole pages; a run of consecutive page numbers is one `pread`. Bytes
-//! read are pages × page size. The seek distance of a frame is Σ |p_i − p_{i−1}| over its pages
+//! Pages come through the page file's pager: with read access (the default, the paper's) a run
+//! of consecutive page numbers is one `pread`; the map and the buffer pool serve the same pages
+//! (see [`crate::pager::Access`]). Every page read is reported to the observer. Bytes read are
+//! pages × page size. The seek distance of a frame is Σ |p_i − p_{i−1}| over its pages
 //! in read order, in pages, where p_0 is the last page the previous frame read (the "head" stays
 //! where the last read left it; page 0 before the first frame), so jumping back to the start of
 //! the next frame's range is counted too. Consecutive pages cost 1 each.
 
 use std::time::Instant;
 
-use super::file::PageFile;
 use super::kdtree::{back_facing, box_in_frustum, query_frustum};
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::flight::frame::{MeshFrameSource, MeshFrameStats, PageFetchFigures};
+use crate::format::pages::PageFile;
 use crate::mesh::Bounds;
+use crate::pager::{BlockBuf, NoTrace, PageObserver};
 
 /// How the fetch culls.
 #[derive(Clone, Copy, Debug)]
@@ -37,9 +40,10 @@ impl Default for FetchOptions {
     }
 }
 
-/// A page file flown frame by frame.
-pub struct PageSource {
+/// A page file flown frame by frame, its reads reported to `O`.
+pub struct PageSource<O: PageObserver = NoTrace> {
     file: PageFile,
+    observer: O,
     options: FetchOptions,
     triangles: Vec<[f32; 3]>,
     /// This frame's pages (ascending) and the scratch the next frame's are built in.
@@ -47,22 +51,30 @@ pub struct PageSource {
     next_pages: Vec<u32>,
     candidates: Vec<u32>,
     stack: Vec<u32>,
-    buf: Vec<u8>,
+    buf: BlockBuf,
     head_page: u64,
     last: Option<PageFetchFigures>,
 }
 
-impl PageSource {
-    pub fn new(file: PageFile, options: FetchOptions) -> PageSource {
+impl PageSource<NoTrace> {
+    pub fn new(file: PageFile, options: FetchOptions) -> PageSource<NoTrace> {
+        PageSource::observed(file, options, NoTrace)
+    }
+}
+
+impl<O: PageObserver> PageSource<O> {
+    /// A fetch whose page reads are reported to `observer`.
+    pub fn observed(file: PageFile, options: FetchOptions, observer: O) -> PageSource<O> {
         PageSource {
             file,
+            observer,
             options,
             triangles: Vec::new(),
             pages: Vec::new(),
             next_pages: Vec::new(),
             candidates: Vec::new(),
             stack: Vec::new(),
-            buf: Vec::new(),
+            buf: BlockBuf::default(),
             head_page: 0,
             last: None,
         }
@@ -70,6 +82,10 @@ impl PageSource {
 
     pub fn file(&self) -> &PageFile {
         &self.file
+    }
+
+    pub fn observer(&self) -> &O {
+        &self.observer
     }
 
     /// The pages the last update read, ascending.
@@ -92,7 +108,7 @@ impl PageSource {
     }
 }
 
-impl MeshFrameSource for PageSource {
+impl<O: PageObserver> MeshFrameSource for PageSource<O> {
     fn update(&mut self, camera: &Camera, _tolerance_px: f64) -> Result<MeshFrameStats> {
         if self.options.evict_each_frame {
             self.file.evict_from_page_cache()?;
@@ -112,14 +128,20 @@ impl MeshFrameSource for PageSource {
                 j += 1;
             }
             let t = Instant::now();
-            self.file.read_pages(pages[i], (j - i + 1) as u32, &mut self.buf)?;
-            read_s += t.elapsed().as_secs_f64();
-            for (k, &p) in pages[i..=j].iter().enumerate() {
+            let (file, observer, triangles) = (&self.file, &self.observer, &mut self.triangles);
+            let mut decode_s = 0.0;
+            file.for_run(pages[i], (j - i + 1) as u32, &mut self.buf, |p, bytes| {
+                let d = Instant::now();
+                if O::TRACES {
+                    observer.read(file.header().data_offset + p as u64 * page_bytes as u64, page_bytes as u64);
+                }
                 seek += (p as u64).abs_diff(head);
                 head = p as u64;
-                let view = self.file.decode(p, &self.buf[k * page_bytes..(k + 1) * page_bytes])?;
-                view.append_triangles(&mut self.triangles);
-            }
+                file.decode(p, bytes)?.append_triangles(triangles);
+                decode_s += d.elapsed().as_secs_f64();
+                Ok(())
+            })?;
+            read_s += t.elapsed().as_secs_f64() - decode_s;
             i = j + 1;
         }
         self.head_page = head;

@@ -16,44 +16,16 @@
 //! (axis, half-angle) and its box's bounding sphere put every triangle's normal more than 90°
 //! from the direction towards the eye.
 
-use bytemuck::{Pod, Zeroable};
 use glam::DVec3;
 
 use crate::camera::PLANES;
 
-/// `axis` of a leaf node.
-pub const LEAF: u32 = 3;
+pub use crate::format::pages::{KdNode, PageBounds, LEAF};
+
 /// A node with at most this many pages is a leaf.
 pub const LEAF_PAGES: usize = 4;
 /// Depth limit (boxes that overlap a lot cannot be separated by any plane).
 pub const MAX_DEPTH: u32 = 40;
-
-/// One k-d tree node (40 bytes on disk, little-endian).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct KdNode {
-    /// Union of the boxes of the pages below.
-    pub box_min: [f32; 3],
-    pub box_max: [f32; 3],
-    /// 0, 1, 2: the split axis of an inner node; [`LEAF`] for a leaf.
-    pub axis: u32,
-    /// The split plane's coordinate (inner nodes; informative).
-    pub split: f32,
-    /// Inner: the children's node indices. Leaf: first entry in the page-number list and count.
-    pub a: u32,
-    pub b: u32,
-}
-
-/// A page's bounding box and normal cone, as the fetch culls it.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PageBounds {
-    pub box_min: [f32; 3],
-    pub box_max: [f32; 3],
-    /// Unit axis of the normal cone.
-    pub cone_axis: [f32; 3],
-    /// Half-angle of the cone, radians (π or more: normals point every way, never culled).
-    pub cone_half_angle_rad: f32,
-}
 
 /// Builds the tree over page boxes `(min, max)`: the nodes (root first) and the leaves' page
 /// number list.

@@ -10,8 +10,8 @@
 //! - [`kdtree`]: the disk-page k-d tree and the box / normal-cone culling.
 //! - [`fetch`]: the per-frame fetch as a [`crate::flight::frame::MeshFrameSource`].
 
+pub mod build;
 pub mod fetch;
-pub mod file;
 pub mod hilbert;
 pub mod kdtree;
 pub mod matching;

@@ -279,7 +279,7 @@ impl dem::DemSource for TerrainSource<'_> {
             // Grid row y counts from the south; DEM row 0 is the northernmost.
             let y = y1 - 1 - r;
             for (k, v) in row.iter_mut().enumerate() {
-                *v = self.terrain.record_at(x0 + k as u32, y).z as f64;
+                *v = self.terrain.record_at(x0 + k as u32, y)?.z as f64;
             }
             sink(dem::Run { row: r, x0: 0, values: &row })?;
         }
@@ -469,7 +469,7 @@ fn convert_source(
     cancel::check()?;
     {
         use std::os::unix::fs::FileExt;
-        out_file.write_all_at(&header.encode(), 0).at(output)?;
+        out_file.write_all_at(&crate::format::Format::encode(&header).0, 0).at(output)?;
     }
     out_file.sync_all().at(output)?;
     drop(out_file);

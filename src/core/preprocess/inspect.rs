@@ -103,7 +103,8 @@ pub fn verify(file: &TerrainFile, progress: Progress) -> Result<VerifyReport> {
     let h = file.header();
     let grid = h.grid();
     let layout = file.layout();
-    let records = file.records();
+    let records = file.records()?;
+    let records = &*records;
     let mut problems = Vec::new();
     let payload_checksum_ok = match file.verify_payload() {
         Ok(()) => true,

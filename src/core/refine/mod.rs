@@ -20,7 +20,10 @@
 pub mod check;
 pub mod metric;
 pub mod minimal;
+pub mod records;
 pub mod report;
+
+pub use records::{MappedRecords, PagerRecords, RecordSource};
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -31,34 +34,6 @@ use crate::format::terrain::{Record, TerrainFile};
 use crate::layout::hierarchy::Grid;
 use crate::layout::{Layout, LayoutVisitor, Vertex};
 use crate::refine::metric::{ErrorMetric, Isotropic, MetricKind, Projected};
-
-/// Where refinement reads vertex records from, by layout index. The mapped file is a slice; an
-/// instrumented source (page-fault experiments) can observe every read without touching the loop.
-pub trait RecordSource: Sync {
-    fn record(&self, index: u64) -> Record;
-
-    /// Hint that `record(index)` will be read soon (a cache prefetch); must not fault.
-    #[inline(always)]
-    fn prefetch(&self, _index: u64) {}
-}
-
-impl RecordSource for [Record] {
-    #[inline(always)]
-    fn record(&self, index: u64) -> Record {
-        self[index as usize]
-    }
-
-    #[inline(always)]
-    fn prefetch(&self, index: u64) {
-        #[cfg(target_arch = "x86_64")]
-        if let Some(r) = self.get(index as usize) {
-            // SAFETY: a prefetch is only a hint; the address is inside the slice.
-            unsafe {
-                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((r as *const Record).cast())
-            }
-        }
-    }
-}
 
 /// A strip vertex: grid coordinates (`x` east, `y` north, in posts). The renderer turns them into
 /// positions from its own copy of the heights.
@@ -644,15 +619,42 @@ impl Refiner {
         self.parallel_min_len = len;
     }
 
-    /// Refines a mapped terrain file for `camera`, writing the strip into `strip`.
+    /// Refines a terrain file for `camera`, writing the strip into `strip`: in place when the
+    /// file is mapped, else through its pager.
     pub fn refine_file(
         &mut self,
         terrain: &TerrainFile,
         camera: &Camera,
         options: &RefineOptions,
         strip: &mut Strip,
-    ) -> RefineCounters {
-        self.refine_source(terrain, terrain.records(), camera, options, strip)
+    ) -> crate::Result<RefineCounters> {
+        match terrain.mapped_records() {
+            Some(records) => Ok(self.refine_source(terrain, records, camera, options, strip)),
+            None => self.refine_observed(terrain, crate::pager::NoTrace, camera, options, strip),
+        }
+    }
+
+    /// Like [`Self::refine_file`], reporting every record read to `observer`.
+    pub fn refine_observed<O: crate::pager::PageObserver>(
+        &mut self,
+        terrain: &TerrainFile,
+        observer: O,
+        camera: &Camera,
+        options: &RefineOptions,
+        strip: &mut Strip,
+    ) -> crate::Result<RefineCounters> {
+        match terrain.mapped_records() {
+            Some(records) => {
+                let source = MappedRecords::new(records, terrain.header().payload_offset, observer);
+                Ok(self.refine_source(terrain, &source, camera, options, strip))
+            }
+            None => {
+                let source = PagerRecords::new(terrain, observer);
+                let counters = self.refine_source(terrain, &source, camera, options, strip);
+                source.take_error()?;
+                Ok(counters)
+            }
+        }
     }
 
     /// Like [`Self::refine_file`], reading records through `records` (same layout as `terrain`).

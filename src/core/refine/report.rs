@@ -96,7 +96,8 @@ fn run<L: Layout, M: ErrorMetric>(
     options: &RefineOptions,
     report: &ReportOptions,
 ) -> crate::Result<(RefineReport, Strip)> {
-    let records = terrain.records();
+    let records = terrain.records()?;
+    let records = &*records;
     let mut refiner = Refiner::new(report.threads)?;
     let mut strip = Strip::new();
     let mut times_ms = Vec::with_capacity(report.repeat.max(1));

@@ -1,0 +1,120 @@
+//! Where refinement reads vertex records from, by layout index ([`RecordSource`]): a terrain
+//! file's pager, whatever its access. A mapped file is read in place ([`MappedRecords`], or the
+//! plain `[Record]` slice: the fast path); any other access goes block by block through the
+//! pager ([`PagerRecords`]: the pool, or positioned reads). Both report every record read to a
+//! [`PageObserver`] (the page-fault experiments); with [`NoTrace`] that costs nothing.
+
+use std::sync::Mutex;
+
+use crate::error::{Error, Result};
+use crate::format::terrain::{Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
+use crate::pager::{NoTrace, PageObserver, Pager};
+
+/// Where refinement reads vertex records from, by layout index.
+pub trait RecordSource: Sync {
+    fn record(&self, index: u64) -> Record;
+
+    /// Hint that `record(index)` will be read soon (a cache prefetch); must not fault.
+    #[inline(always)]
+    fn prefetch(&self, _index: u64) {}
+}
+
+impl RecordSource for [Record] {
+    #[inline(always)]
+    fn record(&self, index: u64) -> Record {
+        self[index as usize]
+    }
+
+    #[inline(always)]
+    fn prefetch(&self, index: u64) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(r) = self.get(index as usize) {
+            // SAFETY: a prefetch is only a hint; the address is inside the slice.
+            unsafe {
+                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>((r as *const Record).cast())
+            }
+        }
+    }
+}
+
+/// A mapped terrain's records, every read reported to an observer: record `i` lives at byte
+/// `payload_offset + i · 12` of the file.
+pub struct MappedRecords<'a, O: PageObserver> {
+    records: &'a [Record],
+    payload_offset: u64,
+    observer: O,
+}
+
+impl<'a, O: PageObserver> MappedRecords<'a, O> {
+    pub fn new(records: &'a [Record], payload_offset: u64, observer: O) -> Self {
+        MappedRecords { records, payload_offset, observer }
+    }
+}
+
+impl<O: PageObserver> RecordSource for MappedRecords<'_, O> {
+    #[inline(always)]
+    fn record(&self, index: u64) -> Record {
+        if O::TRACES {
+            self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
+        }
+        self.records[index as usize]
+    }
+
+    #[inline(always)]
+    fn prefetch(&self, index: u64) {
+        if !O::TRACES {
+            self.records.prefetch(index);
+        }
+    }
+}
+
+/// A terrain's records read block by block through its pager (pool or positioned reads): record
+/// `i` is in block `i / RECORDS_PER_BLOCK`. A read that fails gives a record that is never active
+/// (so refinement stops above it) and is kept for [`Self::take_error`].
+pub struct PagerRecords<'a, O: PageObserver = NoTrace> {
+    pager: &'a Pager,
+    payload_offset: u64,
+    observer: O,
+    error: Mutex<Option<Error>>,
+}
+
+impl<'a, O: PageObserver> PagerRecords<'a, O> {
+    pub fn new(terrain: &'a TerrainFile, observer: O) -> Self {
+        PagerRecords {
+            pager: terrain.pager(),
+            payload_offset: terrain.header().payload_offset,
+            observer,
+            error: Mutex::new(None),
+        }
+    }
+
+    /// The first read error since the last call.
+    pub fn take_error(&self) -> Result<()> {
+        match self.error.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+}
+
+/// The record no refinement makes active (NaN error and radius fail the active test).
+const UNREADABLE: Record = Record { z: 0.0, error: f32::NAN, radius: f32::NAN };
+
+impl<O: PageObserver> RecordSource for PagerRecords<'_, O> {
+    fn record(&self, index: u64) -> Record {
+        if O::TRACES {
+            self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
+        }
+        let at = (index % RECORDS_PER_BLOCK) as usize * RECORD_BYTES as usize;
+        match self.pager.block((index / RECORDS_PER_BLOCK) as u32) {
+            Ok(block) if at + RECORD_BYTES as usize <= block.len() => {
+                bytemuck::pod_read_unaligned(&block[at..at + RECORD_BYTES as usize])
+            }
+            Ok(_) => UNREADABLE,
+            Err(e) => {
+                self.error.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+                UNREADABLE
+            }
+        }
+    }
+}
