@@ -97,21 +97,27 @@ pub fn write_layouts_figure(out: &Path, fig: &Figure) -> Result<()> {
     }
     let image = image::RgbImage::from_raw(w, h, buf)
         .ok_or_else(|| Error::plot(out, "the drawing buffer does not match the image size"))?;
-    crate::fly::save_png(&image, out)
+    crate::render::save_png(&image, out)
 }
 
-/// The colour of a layout's curves: fixed for the five layouts (`row-major`, `tiled`,
-/// `interleaved`, `embedded`, `hz`; case and surrounding blanks ignored), and for any other label
+/// The colour of a layout's curves: fixed for the five terrain layouts (`row-major`, `tiled`,
+/// `interleaved`, `embedded`, `hz`) and the five mesh-backend rows (`meta-node virt|ext`,
+/// `pages raster|hilbert|2factor`; case and surrounding blanks ignored), and for any other label
 /// one of five further colours chosen by a hash of the label, so it too is the same in every
 /// figure.
 pub fn layout_colour(label: &str) -> RGBColor {
     // Tableau-10 (matplotlib's default cycle): distinct, and readable on white.
-    const KNOWN: [(&str, RGBColor); 5] = [
-        ("row-major", RGBColor(31, 119, 180)),  // blue
-        ("tiled", RGBColor(255, 127, 14)),      // orange
-        ("interleaved", RGBColor(44, 160, 44)), // green
-        ("embedded", RGBColor(214, 39, 40)),    // red
-        ("hz", RGBColor(148, 103, 189)),        // purple
+    const KNOWN: [(&str, RGBColor); 10] = [
+        ("row-major", RGBColor(31, 119, 180)),      // blue
+        ("tiled", RGBColor(255, 127, 14)),          // orange
+        ("interleaved", RGBColor(44, 160, 44)),     // green
+        ("embedded", RGBColor(214, 39, 40)),        // red
+        ("hz", RGBColor(148, 103, 189)),            // purple
+        ("meta-node virt", RGBColor(140, 86, 75)),  // brown
+        ("meta-node ext", RGBColor(227, 119, 194)), // pink
+        ("pages raster", RGBColor(127, 127, 127)),  // grey
+        ("pages hilbert", RGBColor(188, 189, 34)),  // olive
+        ("pages 2factor", RGBColor(23, 190, 207)),  // cyan
     ];
     const OTHER: [RGBColor; 5] = [
         RGBColor(140, 86, 75),   // brown
@@ -461,21 +467,30 @@ mod tests {
     }
 }
 
+/// The label of a run in the figures: the terrain's layout name (which picks its fixed colour), or
+/// the backend and its layout or access.
+fn run_label(r: &crate::faults::FaultRun) -> String {
+    match r.backend {
+        crate::faults::Backend::Terrain => r.layout.clone(),
+        b => format!("{} {}", b.name(), r.layout),
+    }
+}
+
 /// Draws the paper's two figures for `report` into `out` (PNG): cumulative faults per frame at the
-/// smallest τ, and total faults against τ, one line per layout.
+/// smallest τ, and total faults against τ, one line per backend and layout.
 pub fn plot_report(report: &crate::faults::LayoutsReport, out: &Path) -> Result<()> {
-    let first_tau = report.layouts.iter().map(|r| r.tolerance).fold(f64::INFINITY, f64::min);
-    let mut labels: Vec<&str> = Vec::new();
-    for r in &report.layouts {
-        if !labels.contains(&r.layout.as_str()) {
-            labels.push(&r.layout);
+    let first_tau = report.runs.iter().map(|r| r.tolerance).fold(f64::INFINITY, f64::min);
+    let mut labels: Vec<String> = Vec::new();
+    for r in &report.runs {
+        if !labels.contains(&run_label(r)) {
+            labels.push(run_label(r));
         }
     }
     let frames: Vec<FrameSeries> = labels
         .iter()
-        .filter_map(|l| report.layouts.iter().find(|r| r.layout == *l && r.tolerance == first_tau))
+        .filter_map(|l| report.runs.iter().find(|r| run_label(r) == *l && r.tolerance == first_tau))
         .map(|r| FrameSeries {
-            label: r.layout.clone(),
+            label: run_label(r),
             cumulative_faults: r
                 .faults_per_frame
                 .iter()
@@ -489,8 +504,8 @@ pub fn plot_report(report: &crate::faults::LayoutsReport, out: &Path) -> Result<
     let by_tolerance: Vec<ToleranceSeries> = labels
         .iter()
         .map(|l| ToleranceSeries {
-            label: l.to_string(),
-            points: report.layouts.iter().filter(|r| r.layout == *l).map(|r| (r.tolerance, r.faults)).collect(),
+            label: l.clone(),
+            points: report.runs.iter().filter(|r| run_label(r) == *l).map(|r| (r.tolerance, r.faults)).collect(),
         })
         .collect();
     let name = Path::new(&report.input).file_name().map_or(report.input.clone(), |n| n.to_string_lossy().into_owned());

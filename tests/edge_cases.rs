@@ -13,7 +13,6 @@ use std::path::{Path, PathBuf};
 use common::crack::{convert_all, crack_free_everywhere};
 use glam::DVec3;
 use relief::camera::Camera;
-use relief::fly::render_still;
 use relief::format::terrain::{Record, TerrainFile};
 use relief::layout::hierarchy::{split_children, Grid, VertexKind, MAX_N};
 use relief::layout::{AnyLayout, Layout, LayoutKind, LayoutVisitor};
@@ -21,6 +20,7 @@ use relief::preprocess::inspect::verify;
 use relief::refine::check::{check_strip, MeshCheck};
 use relief::refine::metric::Isotropic;
 use relief::refine::{RecordSource, RefineOptions, Refiner, Strip, View};
+use relief::render::render_still;
 use relief::render::DrawStyle;
 use relief::sys::progress::Progress;
 
@@ -66,8 +66,16 @@ fn end_to_end(dir: &Path, name: &str, input: &Path, min_mean_triangles: u64, loo
     let camera = relief::camera::Camera::new(eye, look, glam::DVec3::Z, 60.0, 160, 100).unwrap();
     let gpu = common::gpu();
     let options = RefineOptions { tolerance_px: 1.0, ..RefineOptions::default() };
-    let (image, still) = render_still(&gpu, &files[0], &camera, &options, DrawStyle::default(), 1, Progress::hidden())
-        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    let (image, still) = render_still(
+        &gpu,
+        std::sync::Arc::new(relief::format::terrain::TerrainFile::open(files[0].path()).unwrap()),
+        &camera,
+        &options,
+        DrawStyle::default(),
+        1,
+        Progress::hidden(),
+    )
+    .unwrap_or_else(|e| panic!("{name}: {e}"));
     assert!(still.triangles >= 2, "{name}: {} triangles drawn", still.triangles);
     let sky = *image.get_pixel(80, 0);
     let ground = image.pixels().filter(|p| **p != sky).count();

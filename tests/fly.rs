@@ -6,15 +6,13 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use common::{dem, relief, stderr_of, window_session};
+use common::{dem, fly_terrain, gpu, relief, stderr_of, window_session};
 use relief::flight::{flyover, FlyoverOptions};
-use relief::fly::{fly_headless, HeadlessOptions};
 use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::preprocess::convert::{convert, ConvertOptions};
 use relief::refine::RefineOptions;
 use relief::render::terrain::{FRAME_UNIFORM_BYTES, VERTEX_BYTES};
-use relief::render::DrawStyle;
 use relief::sys::progress::Progress;
 
 fn zurich(dir: &Path) -> PathBuf {
@@ -33,18 +31,9 @@ fn headless_flight_renders_every_frame_in_both_refinement_modes() {
     let path = flyover(&terrain, &FlyoverOptions::new(6)).unwrap();
     let cameras: Vec<_> = (0..path.frames.len()).map(|k| path.camera(k, 60.0, 160, 100).unwrap()).collect();
     let frames_dir = dir.path().join("frames");
-    let mut options = HeadlessOptions {
-        width_px: 160,
-        height_px: 100,
-        fov_x_deg: 60.0,
-        refine: RefineOptions { tolerance_px: 1.0, ..Default::default() },
-        style: DrawStyle::default(),
-        threads: 1,
-        refine_thread: false,
-        frames_out: Some(frames_dir.clone()),
-        progress: Progress::hidden(),
-    };
-    let sync = fly_headless(terrain.clone(), &cameras, &options).unwrap();
+    let refine = RefineOptions { tolerance_px: 1.0, ..Default::default() };
+    let gpu = gpu();
+    let sync = fly_terrain(&gpu, &terrain, &cameras, refine, false, Some(frames_dir.clone()));
     assert_eq!(sync.frames.len(), 6);
     for f in &sync.frames {
         let png = frames_dir.join(format!("frame_{:05}.png", f.frame));
@@ -54,24 +43,23 @@ fn headless_flight_renders_every_frame_in_both_refinement_modes() {
         let ground = img.pixels().filter(|p| p[1] as i32 > p[2] as i32).count();
         assert!(ground > 1000, "{}: only {ground} terrain-coloured pixels", png.display());
         // Synchronous: every frame refines its own view and uploads exactly that strip.
-        assert!(f.refine_ms.is_some() && f.triangles > 0 && f.lag_frames == 0);
-        assert_eq!(f.upload_bytes, f.strip_len as u64 * VERTEX_BYTES + FRAME_UNIFORM_BYTES);
+        let s = &f.stats;
+        assert!(s.update_ms.is_some() && s.triangles > 0 && s.lag_frames == 0 && s.changed);
+        assert_eq!(f.upload_bytes, s.strip_len * VERTEX_BYTES + FRAME_UNIFORM_BYTES);
     }
     assert_eq!(sync.summary.frames, 6);
     assert!(sync.summary.fps > 0.0);
 
     // With the refinement thread the render loop never waits after the first frame, so a frame
     // may draw an older strip; it still draws one, and uploads only when a strip is new.
-    options.refine_thread = true;
-    options.frames_out = None;
-    let threaded = fly_headless(terrain, &cameras, &options).unwrap();
+    let threaded = fly_terrain(&gpu, &terrain, &cameras, refine, true, None);
     assert_eq!(threaded.frames.len(), 6);
-    assert_eq!(threaded.frames[0].strip_len, sync.frames[0].strip_len, "first frame waits for its strip");
+    assert_eq!(threaded.frames[0].stats.strip_len, sync.frames[0].stats.strip_len, "first frame waits for its strip");
     for f in &threaded.frames {
-        assert!(f.strip_len > 2);
+        assert!(f.stats.strip_len > 2);
         let strip_bytes = f.upload_bytes - FRAME_UNIFORM_BYTES;
-        assert!(strip_bytes == 0 || strip_bytes == f.strip_len as u64 * VERTEX_BYTES, "{f:?}");
-        assert_eq!(f.refine_ms.is_some(), strip_bytes > 0);
+        assert!(strip_bytes == 0 || strip_bytes == f.stats.strip_len * VERTEX_BYTES, "{f:?}");
+        assert_eq!(f.stats.update_ms.is_some(), strip_bytes > 0);
     }
 }
 
@@ -97,15 +85,21 @@ fn fly_cli_writes_frames_and_stats() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", stderr_of(&o));
-    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    for key in ["frames", "fps", "refine_ms_median", "render_ms_median", "triangles_mean", "upload_bytes_mean"] {
-        assert!(summary.get(key).is_some(), "summary lacks {key}: {summary}");
+    // --json prints the report --stats writes: the same schema for every backend.
+    let printed: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let summary = &printed["summary"];
+    for key in ["frames", "fps"] {
+        assert!(summary[key].is_number(), "summary lacks {key}: {summary}");
+    }
+    for key in ["update_ms", "render_ms", "frame_ms", "triangles", "upload_bytes", "major_faults"] {
+        assert!(summary[key]["median"].is_number() && summary[key]["mean"].is_number(), "summary lacks {key}");
     }
     assert_eq!(summary["frames"], 3);
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
     let per_frame = report["frames"].as_array().unwrap();
     assert_eq!(per_frame.len(), 3);
-    for key in ["refine_ms", "render_ms", "triangles", "upload_bytes", "major_faults", "minor_faults"] {
+    assert_eq!(printed["frames"].as_array().unwrap().len(), 3);
+    for key in ["update_ms", "render_ms", "triangles", "strip_len", "upload_bytes", "major_faults", "minor_faults"] {
         assert!(per_frame[0].get(key).is_some(), "frame lacks {key}");
     }
     for k in 0..3 {

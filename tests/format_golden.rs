@@ -1,14 +1,26 @@
-//! Golden bytes of the version-1 header: any change to the on-disk format must change this test
-//! (and the version number) on purpose.
+//! The one container every relief file format shares (`relief::format`): per format, the golden
+//! bytes of a header (any change to an on-disk format must change these, and its version, on
+//! purpose), the header decoding back to itself, and every malformation the container and the
+//! format refuse, each as one line naming the file and the format.
 
-use relief::format::terrain::{Header, PAYLOAD_OFFSET, RECORD_BYTES, RECORD_FORMAT_F32, VERSION};
-use relief::format::{decode_header, Format};
+use std::path::Path;
+
+use relief::format::metanode::MetaHeader;
+use relief::format::pages::{PageHeader, PageLayout};
+use relief::format::terrain::{Header, PAYLOAD_OFFSET, RECORD_BYTES, RECORD_FORMAT_F32};
+use relief::format::vdt::{VdtHeader, VdtMetric};
+use relief::format::{decode_header, FileKind, Format, HeaderBytes, Problem};
 use relief::layout::LayoutKind;
+use relief::mesh::Bounds;
 
-fn golden_header() -> Header {
+fn hex(b: &[u8]) -> String {
+    b.iter().map(|x| format!("{x:02x}")).collect()
+}
+
+fn terrain_header() -> Header {
     // A 9 × 9 grid (n = 3) in the interleaved layout: 4 + 5·(4³ − 1)/3 = 109 records.
     Header {
-        version: VERSION,
+        version: relief::format::terrain::VERSION,
         layout: LayoutKind::Interleaved,
         layout_param: 0,
         record_format: RECORD_FORMAT_F32,
@@ -32,11 +44,7 @@ fn golden_header() -> Header {
     }
 }
 
-fn hex(b: &[u8]) -> String {
-    b.iter().map(|x| format!("{x:02x}")).collect()
-}
-
-const GOLDEN: &str = concat!(
+const TERRAIN_GOLDEN: &str = concat!(
     "8952454c4945460a01000000000100000200000000000000010000000c000000",
     "0300000006000000090000000200000000000000000000000700000009000000",
     "00000000000000006d0000000000000051000000000000000010000000000000",
@@ -47,12 +55,165 @@ const GOLDEN: &str = concat!(
     "00000000000000000000000000000000efcdab8967452301d34f9e2cc2e27cb5",
 );
 
+fn vdt_header() -> VdtHeader {
+    VdtHeader {
+        metric: VdtMetric::Quadric,
+        leaves: 3,
+        nodes: 5,
+        triangles: 1,
+        base_triangles: 0,
+        bounds: Bounds { min: [0.0, -1.0, 2.0], max: [1.0, 0.5, 3.0] },
+    }
+}
+
+fn metanode_header() -> MetaHeader {
+    MetaHeader {
+        metric: 0,
+        page_bytes: 4096,
+        levels_per_node: 8,
+        leaves: 100,
+        nodes: 199,
+        triangles: 196,
+        base_triangles: 2,
+        metanodes: 3,
+        root_metanodes: 1,
+        holder_bytes: 3000,
+        mnt_offset: 4096,
+        base_offset: 4096 + 3 * 24,
+        data_offset: 8192,
+        data_bytes: 3 * 4096,
+        bounds: Bounds { min: [-1.0, -2.0, -3.0], max: [1.0, 2.0, 3.0] },
+    }
+}
+
+fn pages_header() -> PageHeader {
+    PageHeader {
+        page_bytes: 1024,
+        layout: PageLayout::Hilbert,
+        pages: 2,
+        triangles: 40,
+        vertex_copies: 50,
+        source_vertices: 30,
+        kd_nodes: 1,
+        kd_offset: 256 + 2 * 48,
+        kd_refs: 2,
+        refs_offset: 256 + 2 * 48 + 40,
+        data_offset: 1024,
+        bounds: Bounds { min: [0.0; 3], max: [4.0, 5.0, 6.0] },
+        tables_checksum: 0xfeed_f00d,
+    }
+}
+
+/// The file length each sample header describes.
+fn file_len<F: Format>(kind: FileKind) -> u64 {
+    match kind {
+        FileKind::Terrain => PAYLOAD_OFFSET + 109 * 12,
+        FileKind::Vdt => vdt_header().file_bytes(),
+        FileKind::MetaNode => 8192 + 3 * 4096,
+        FileKind::Pages => 1024 + 2 * 1024,
+    }
+}
+
+/// The container's checks, the same for every format: magic, version, checksum, size; each a
+/// one-line error naming the file and the format.
+fn container_checks<F: Format + std::fmt::Debug + PartialEq>(good: &F, name: &str) {
+    let kind = F::KIND;
+    let len = file_len::<F>(kind);
+    let path = Path::new(name);
+    let bytes = good.encode().0;
+    let decoded: F = decode_header(path, &bytes, len).unwrap();
+    assert_eq!(&decoded, good, "{kind}: decodes back");
+    assert_eq!(decoded.encode().0, bytes, "{kind}: encodes to the same bytes");
+    let problem = |b: &[u8], len: u64| match decode_header::<F>(path, b, len) {
+        Err(e @ relief::Error::File { .. }) => {
+            let msg = e.to_string();
+            assert!(msg.starts_with(&format!("{name}: ")) && !msg.contains('\n'), "{msg}");
+            assert!(msg.contains(kind.name()), "{msg} does not name the {kind}");
+            let relief::Error::File { kind: k, problem, .. } = e else { unreachable!() };
+            assert_eq!(k, kind);
+            problem
+        }
+        other => panic!("{kind}: {other:?}"),
+    };
+    let mut b = bytes;
+    b[3] ^= 0x20;
+    assert_eq!(problem(&b, len), Problem::BadMagic);
+    // Another kind's header is not this kind's.
+    for other in FileKind::ALL.into_iter().filter(|&o| o != kind) {
+        assert_eq!(problem(&HeaderBytes::new(other).0, len), Problem::BadMagic, "{other} read as {kind}");
+    }
+    let mut b = bytes;
+    b[8] = b[8].wrapping_add(7);
+    assert!(matches!(problem(&b, len), Problem::Version { .. }));
+    let mut b = bytes;
+    b[200] ^= 1;
+    assert!(matches!(problem(&b, len), Problem::Checksum { which: "header", .. }));
+    assert!(matches!(problem(&bytes[..100], 100), Problem::Truncated { expected: 256, found: 100 }));
+    assert!(matches!(problem(&bytes, len - 1), Problem::Truncated { .. }));
+    assert!(matches!(problem(&bytes, len + 1), Problem::Truncated { .. }), "{kind}: bytes past the end");
+    assert_eq!(FileKind::of_magic(&bytes), Some(kind));
+}
+
+/// A field inconsistent with the others, with a valid checksum: the format's own check.
+fn corrupt_field<F: Format>(name: &str, edit: impl Fn(&mut HeaderBytes), want: &str) {
+    let mut h = HeaderBytes(match F::KIND {
+        FileKind::Terrain => terrain_header().encode().0,
+        FileKind::Vdt => vdt_header().encode().0,
+        FileKind::MetaNode => metanode_header().encode().0,
+        FileKind::Pages => pages_header().encode().0,
+    });
+    edit(&mut h);
+    h.seal();
+    let e = decode_header::<F>(Path::new(name), &h.0, file_len::<F>(F::KIND)).unwrap_err().to_string();
+    assert!(e.starts_with(&format!("{name}: corrupt {}: ", F::KIND.name())) && e.contains(want), "{e}");
+}
+
 #[test]
-fn header_bytes_are_frozen() {
-    let bytes = golden_header().encode().0;
-    assert_eq!(hex(&bytes), GOLDEN);
-    // And the frozen bytes decode back to the same header.
-    let file_len = PAYLOAD_OFFSET + 109 * 12;
-    let decoded: Header = decode_header(std::path::Path::new("golden.relief"), &bytes, file_len).unwrap();
-    assert_eq!(decoded.encode().0, bytes);
+fn terrain_header_bytes_are_frozen_and_checked() {
+    assert_eq!(hex(&terrain_header().encode().0), TERRAIN_GOLDEN);
+    container_checks(&terrain_header(), "golden.relief");
+    corrupt_field::<Header>("golden.relief", |h| h.put_u32(16, 99), "unknown layout code 99");
+    corrupt_field::<Header>("golden.relief", |h| h.put_u64(72, 110), "110 records");
+}
+
+#[test]
+fn vdt_header_bytes_are_frozen_and_checked() {
+    assert_eq!(
+        hex(&vdt_header().encode().0[..96]),
+        concat!(
+            "8952464c5644540a020000000100000003000000000000000500000000000000",
+            "01000000000000000000000000000000000000000000000000000000000000f0",
+            "bf0000000000000040000000000000f03f000000000000e03f00000000000008",
+        )
+    );
+    container_checks(&vdt_header(), "golden.vdt");
+    corrupt_field::<VdtHeader>("golden.vdt", |h| h.put_u64(24, 9), "9 nodes is more than a binary forest");
+}
+
+#[test]
+fn metanode_header_bytes_are_frozen_and_checked() {
+    assert_eq!(
+        hex(&metanode_header().encode().0[..64]),
+        concat!(
+            "8952464c4d4e540a01000000000000000010000008000000640000000000000",
+            "0c700000000000000c40000000000000002000000000000000300000000000000",
+        )
+    );
+    container_checks(&metanode_header(), "golden.rmn");
+    corrupt_field::<MetaHeader>("golden.rmn", |h| h.put_u32(16, 3000), "page size 3000");
+    corrupt_field::<MetaHeader>("golden.rmn", |h| h.put_u64(88, 4097), "section offsets are inconsistent");
+}
+
+#[test]
+fn page_header_bytes_are_frozen_and_checked() {
+    assert_eq!(
+        hex(&pages_header().encode().0[..64]),
+        concat!(
+            "8952464c5047530a0100000000010000000400000200000002000000000000000",
+            "2800000000000000320000000000000001e00000000000000000100000000000",
+        )
+    );
+    container_checks(&pages_header(), "golden.rpg");
+    corrupt_field::<PageHeader>("golden.rpg", |h| h.put_u32(20, 9), "unknown layout 9");
+    corrupt_field::<PageHeader>("golden.rpg", |h| h.put_u64(24, 0), "0 pages");
 }

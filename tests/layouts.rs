@@ -8,7 +8,7 @@ use std::path::Path;
 use std::process::Command;
 
 use common::dem;
-use relief::faults::run_model;
+use relief::faults::run_terrain;
 use relief::flight::{flyover, FlyoverOptions};
 use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
@@ -66,8 +66,8 @@ fn fault_counts_are_deterministic_and_hierarchical_layouts_fault_less() {
         let cams: Vec<_> = (0..60).map(|k| path.camera(k, 60.0, 1920, 1080).unwrap()).collect();
         // Memory: 1/16 of the terrain's data.
         let memory = t.grid().vertices() * 12 / 16;
-        let a = run_model(&t, &cams, 1.0, memory, geometry).unwrap();
-        let b = run_model(&t, &cams, 1.0, memory, geometry).unwrap();
+        let a = run_terrain(t.path(), &cams, 1.0, memory, geometry).unwrap();
+        let b = run_terrain(t.path(), &cams, 1.0, memory, geometry).unwrap();
         assert_eq!(a.faults_per_frame, b.faults_per_frame, "{kind}: counts differ between runs");
         assert_eq!((a.faults, a.distinct_pages, a.lower_bound), (b.faults, b.distinct_pages, b.lower_bound));
         assert!(a.lower_bound <= a.distinct_pages && a.distinct_pages <= a.faults, "{kind}: {a:?}");
@@ -119,9 +119,10 @@ fn cli_reports_every_layout_and_os_faults_or_why_not() {
     let plot = image::open(dir.path().join("faults.png")).unwrap();
     assert_eq!((plot.width(), plot.height()), relief::plot::TWO_PANEL_SIZE);
     let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let runs = r["layouts"].as_array().unwrap();
+    let runs = r["runs"].as_array().unwrap();
     assert_eq!(runs.len(), 10);
     for run in runs {
+        assert_eq!(run["backend"], "terrain");
         for key in [
             "layout",
             "tolerance",
@@ -130,9 +131,9 @@ fn cli_reports_every_layout_and_os_faults_or_why_not() {
             "faults_per_frame_max",
             "distinct_pages",
             "bytes_read",
-            "refine_ms_per_frame",
+            "update_ms_per_frame",
             "lower_bound",
-            "ratio_to_row_major",
+            "ratio_to_first",
         ] {
             assert!(run.get(key).is_some(), "missing {key}");
         }
@@ -168,7 +169,7 @@ fn os_cap_works_or_says_why() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     let note = r["os_note"].as_str().unwrap();
-    let run = &r["layouts"][0];
+    let run = &r["runs"][0];
     assert!(run["faults"].as_u64().unwrap() > 0);
     if note.contains("under a cgroup v1 memory cap of 67108864 bytes") {
         assert!(run["os"]["major"].as_u64().unwrap() > 0, "{run}");

@@ -10,15 +10,13 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use common::crack::{random_camera, Rng};
+use relief::flight::terrain::{RefineJob, RefineThread};
 use relief::flight::{flyover, orbit, FlyoverOptions, OrbitOptions};
-use relief::fly::{fly_headless_on, HeadlessOptions, RefineJob, RefineThread};
 use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::preprocess::convert::{convert, ConvertOptions};
 use relief::refine::RefineOptions;
-use relief::render::DrawStyle;
 use relief::sys::mem::rss_anon_bytes;
-use relief::sys::progress::Progress;
 
 const FRAMES: usize = 10_000;
 
@@ -49,18 +47,8 @@ fn ten_thousand_frames_with_the_refinement_thread_keep_memory_flat() {
             }
         })
         .collect();
-    let options = HeadlessOptions {
-        width_px: w,
-        height_px: h,
-        fov_x_deg: 60.0,
-        // τ = 0.5 px on a 64-pixel view: thousands of triangles a strip near the ground.
-        refine: RefineOptions { tolerance_px: 0.5, ..RefineOptions::default() },
-        style: DrawStyle::default(),
-        threads: 1,
-        refine_thread: true,
-        frames_out: None,
-        progress: Progress::hidden(),
-    };
+    // τ = 0.5 px on a 64-pixel view: thousands of triangles a strip near the ground.
+    let refine = RefineOptions { tolerance_px: 0.5, ..RefineOptions::default() };
     // Sample anonymous memory beside the flight.
     let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let sampler = {
@@ -78,7 +66,7 @@ fn ten_thousand_frames_with_the_refinement_thread_keep_memory_flat() {
     };
     let gpu = common::gpu();
     let t0 = Instant::now();
-    let report = fly_headless_on(&gpu, terrain.clone(), &cameras, &options).unwrap();
+    let report = common::fly_terrain(&gpu, &terrain, &cameras, refine, true, None);
     let wall_s = t0.elapsed().as_secs_f64();
     stop.store(true, std::sync::atomic::Ordering::Relaxed);
     let samples = sampler.join().unwrap();
@@ -86,15 +74,15 @@ fn ten_thousand_frames_with_the_refinement_thread_keep_memory_flat() {
 
     // Strips keep arriving: the refinement thread serves the loop throughout, and the loop does
     // not wait for it (frames without a new strip are drawn with the previous one).
-    let new_strips = report.frames.iter().filter(|f| f.refine_ms.is_some()).count();
+    let new_strips = report.frames.iter().filter(|f| f.stats.update_ms.is_some()).count();
     assert!(new_strips > FRAMES / 20, "{new_strips} new strips in {FRAMES} frames");
     for quarter in report.frames.chunks(FRAMES / 4) {
-        assert!(quarter.iter().any(|f| f.refine_ms.is_some()), "a quarter of the flight without a new strip");
+        assert!(quarter.iter().any(|f| f.stats.update_ms.is_some()), "a quarter of the flight without a new strip");
     }
     // The strip drawn is at most a few camera updates old (a jump waits for one refinement).
-    let max_lag = report.frames.iter().map(|f| f.lag_frames).max().unwrap();
+    let max_lag = report.frames.iter().map(|f| f.stats.lag_frames).max().unwrap();
     assert!(max_lag <= 16, "a strip {max_lag} frames old was drawn");
-    assert!(report.frames.iter().all(|f| f.triangles >= 2));
+    assert!(report.frames.iter().all(|f| f.stats.triangles >= 2));
 
     // Memory: the peak of the last fifth of the flight is within 8 MiB of the peak of the
     // second fifth (the first fifth warms up: strips, the mailboxes, the GPU buffers' growth).

@@ -10,13 +10,15 @@ use common::{check_golden, compare, gpu, mesh, relief, stderr_of, window_session
 use glam::DVec3;
 use relief::camera::{Camera, UpAxis};
 use relief::error::Result;
+use relief::flight::frame::{fly, FlightOptions, Frame, FrameSource, FrameStats, StaticMesh};
 use relief::flight::{orbit_box, OrbitOptions};
 use relief::mesh::{read_mesh, Bounds};
-use relief::mesh_fly::{fly_mesh_headless, MeshFlyOptions, MeshFrameSource, MeshFrameStats, MeshStage, StaticMesh};
+use relief::render::mesh::MESH_FRAME_UNIFORM_BYTES;
 use relief::render::mesh::MESH_VERTEX_BYTES;
 use relief::render::mesh_shade::{self, MeshShadeParams};
 use relief::render::offscreen::OFFSCREEN_FORMAT;
 use relief::render::{Gpu, MeshRenderer, MeshStyle};
+use relief::render::{MeshPresenter, MeshStage};
 use relief::sys::progress::Progress;
 
 fn bunny() -> StaticMesh {
@@ -24,16 +26,10 @@ fn bunny() -> StaticMesh {
 }
 
 /// One frame of `source` seen by `camera`, drawn offscreen.
-fn still(
-    gpu: &Gpu,
-    source: &mut dyn MeshFrameSource,
-    camera: &Camera,
-    up: UpAxis,
-    style: MeshStyle,
-) -> image::RgbaImage {
+fn still(gpu: &Gpu, source: &mut dyn FrameSource, camera: &Camera, up: UpAxis, style: MeshStyle) -> image::RgbaImage {
     let mut stage = MeshStage::new(gpu, OFFSCREEN_FORMAT, source.bounds(), up).unwrap();
-    let stats = source.update(camera, 1.0).unwrap();
-    stage.sync(gpu, source, &stats, camera).unwrap();
+    source.update(camera, 1.0).unwrap();
+    stage.sync(gpu, source.frame(), true, camera).unwrap();
     stage.still(gpu, camera, OFFSCREEN_FORMAT, style).unwrap()
 }
 
@@ -197,27 +193,32 @@ struct Alternating {
     frame: u64,
 }
 
-impl MeshFrameSource for Alternating {
-    fn update(&mut self, _camera: &Camera, _tolerance_px: f64) -> Result<MeshFrameStats> {
+impl FrameSource for Alternating {
+    fn update(&mut self, _camera: &Camera, _tolerance_px: f64) -> Result<FrameStats> {
         self.frame += 1;
         let changed = self.frame.is_multiple_of(2);
-        Ok(MeshFrameStats {
+        Ok(FrameStats {
+            update_ms: Some(0.5),
+            changed,
             splits: if changed { 3 } else { 0 },
             collapses: if changed { 1 } else { 0 },
             misses: if changed { 1 } else { 0 },
             triangles: self.inner.triangles().len() as u64 / 3,
             pages_read: 2,
-            second_chance_hits: 0,
-            adapt_ms: 0.5,
+            ..FrameStats::default()
         })
     }
 
-    fn triangles(&self) -> &[[f32; 3]] {
-        self.inner.triangles()
+    fn frame(&self) -> Frame<'_> {
+        self.inner.frame()
     }
 
     fn bounds(&self) -> Bounds {
         self.inner.bounds()
+    }
+
+    fn describe(&self) -> String {
+        "alternating".into()
     }
 }
 
@@ -230,22 +231,16 @@ fn headless_mesh_flight_writes_frames_and_the_json_report() {
     let path = orbit_box(&source.bounds(), up, &OrbitOptions::new(4)).unwrap();
     let cameras: Vec<Camera> = (0..4).map(|k| path.camera_with_up(k, up, 60.0, 96, 64).unwrap()).collect();
     let (frames_dir, stats) = (dir.path().join("frames"), dir.path().join("stats.json"));
-    let options = MeshFlyOptions {
-        pace_ms: 0.0,
-        width_px: 96,
-        height_px: 64,
-        tolerance_px: 1.0,
-        style: MeshStyle::default(),
-        up,
-        frames_out: Some(frames_dir.clone()),
-        stats_out: Some(stats.clone()),
-        progress: Progress::hidden(),
-    };
-    let report = fly_mesh_headless(Some(&gpu), &mut source, &cameras, &options).unwrap();
-    let triangles = source.triangles().len() as u64 / 3;
+    let mut options = FlightOptions::new(96, 64, 1.0);
+    options.frames_out = Some(frames_dir.clone());
+    options.stats_out = Some(stats.clone());
+    options.progress = Progress::hidden();
+    let mut presenter = MeshPresenter::new(&gpu, source.bounds(), up, 96, 64, MeshStyle::default()).unwrap();
+    let report = fly(&mut source, &cameras, Some(&mut presenter), &options).unwrap();
+    let triangles = source.inner.triangles().len() as u64 / 3;
     let uploads: Vec<u64> = report.frames.iter().map(|f| f.upload_bytes).collect();
-    let full = triangles * 3 * MESH_VERTEX_BYTES;
-    assert_eq!(uploads, [full, full, 0, full], "first frame, then only frames that adapted");
+    let (full, u) = (triangles * 3 * MESH_VERTEX_BYTES, MESH_FRAME_UNIFORM_BYTES);
+    assert_eq!(uploads, [full + u, full + u, u, full + u], "first frame, then only frames that adapted");
     for k in 0..4 {
         let img = image::open(frames_dir.join(format!("frame_{k:05}.png"))).unwrap().to_rgba8();
         assert_eq!(img.dimensions(), (96, 64));
@@ -256,41 +251,34 @@ fn headless_mesh_flight_writes_frames_and_the_json_report() {
     let frames = json["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 4);
     for key in [
-        "adapt",
+        "changed",
         "splits",
         "collapses",
         "triangles",
         "misses",
         "miss_pct",
         "pages_read",
-        "adapt_ms",
+        "update_ms",
         "render_ms",
         "frame_ms",
+        "upload_bytes",
     ] {
         assert!(frames.iter().all(|f| f.get(key).is_some()), "frames lack {key}");
     }
-    assert_eq!(frames[1]["adapt"], 4);
+    assert_eq!((frames[1]["splits"].as_u64(), frames[1]["collapses"].as_u64()), (Some(3), Some(1)));
     assert_eq!(frames[1]["miss_pct"], 20.0);
     assert_eq!(frames[0]["miss_pct"], 0.0);
     let s = &json["summary"];
-    for key in [
-        "frame_ms_mean",
-        "frame_ms_median",
-        "miss_pct",
-        "adapt_mean",
-        "adapt_median",
-        "triangles_mean",
-        "triangles_median",
-        "pages_read",
-        "render_ms_median",
-        "adapt_ms_median",
-    ] {
-        assert!(s.get(key).is_some(), "summary lacks {key}: {s}");
+    for key in ["frame_ms", "triangles", "pages_read", "render_ms", "update_ms", "splits", "misses"] {
+        for stat in ["mean", "median", "max", "total"] {
+            assert!(s[key][stat].is_number(), "summary lacks {key}.{stat}: {s}");
+        }
     }
-    assert_eq!(s["pages_read"], 8);
-    assert_eq!(s["adapt_mean"], 2.0);
+    assert_eq!(s["pages_read"]["total"], 8.0);
+    assert_eq!(s["splits"]["mean"].as_f64().unwrap() + s["collapses"]["mean"].as_f64().unwrap(), 2.0);
     assert_eq!(s["miss_pct"], 20.0, "2 misses among 8 adaptations and 2 misses");
-    assert_eq!(s["triangles_mean"], triangles as f64);
+    assert_eq!(s["triangles"]["mean"], triangles as f64);
+    assert_eq!(s["source"], "alternating");
 }
 
 #[test]
@@ -320,7 +308,7 @@ fn mesh_view_cli_flies_headless_and_reports_json() {
     let report: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(report["frames"].as_array().unwrap().len(), 3);
     assert_eq!(report["summary"]["width"], 64);
-    assert!(report["summary"]["triangles_mean"].as_f64().unwrap() > 60_000.0);
+    assert!(report["summary"]["triangles"]["mean"].as_f64().unwrap() > 60_000.0);
     assert!(frames.join("frame_00002.png").is_file());
 }
 

@@ -178,23 +178,30 @@ fn mesh_build_and_fly_commands() {
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", common::stderr_of(&o));
-    for mode in ["ext", "virt"] {
+    // The paper's two modes by name, and every access by --access.
+    for flags in
+        [["--mode", "ext"], ["--mode", "virt"], ["--access", "map"], ["--access", "read"], ["--access", "pool"]]
+    {
         let o = common::relief()
             .args(["mesh", "fly"])
             .arg(&out)
-            .args(["--mode", mode, "--memory", "1M", "--no-render", "--json", "--quiet", "--path"])
+            .args(flags)
+            .args(["--memory", "1M", "--no-render", "--json", "--quiet", "--path"])
             .arg(&path)
             .output()
             .unwrap();
-        assert!(o.status.success(), "{mode}: {}", common::stderr_of(&o));
+        assert!(o.status.success(), "{flags:?}: {}", common::stderr_of(&o));
         let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
         assert_eq!(r["frames"].as_array().unwrap().len(), 6);
-        for key in ["frame_ms_mean", "miss_pct", "adapt_mean", "triangles_mean", "pages_read"] {
-            assert!(r["summary"][key].is_number(), "{mode}: summary.{key} missing");
+        assert!(r["summary"]["miss_pct"].is_number(), "{flags:?}: summary.miss_pct missing");
+        for key in ["frame_ms", "splits", "collapses", "triangles", "pages_read", "major_faults"] {
+            assert!(r["summary"][key]["mean"].is_number(), "{flags:?}: summary.{key} missing");
         }
-        for key in ["adapt", "triangles", "misses", "frame_ms", "pages_read"] {
-            assert!(r["frames"][0][key].is_number(), "{mode}: frame key {key} missing");
+        for key in ["splits", "collapses", "triangles", "misses", "frame_ms", "pages_read", "update_ms"] {
+            assert!(r["frames"][0][key].is_number(), "{flags:?}: frame key {key} missing");
         }
+        let source = r["summary"]["source"].as_str().unwrap();
+        assert!(source.starts_with("meta-node trees"), "{source}");
     }
     // Bad input: one line, exit 1.
     let bad = dir.path().join("bad.rmn");

@@ -10,7 +10,6 @@ use std::sync::{Arc, Mutex, OnceLock};
 use common::{check_golden, compare, dem, gpu};
 use glam::DVec3;
 use relief::camera::Camera;
-use relief::fly::{render_still, StillReport};
 use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::preprocess::convert::{convert, ConvertOptions};
@@ -18,6 +17,7 @@ use relief::refine::{RefineOptions, Refiner, Strip};
 use relief::render::offscreen::ProbeTargets;
 use relief::render::shade::{self, ShadeParams};
 use relief::render::terrain::{Probe, FRAME_UNIFORM_BYTES, MORPH_BYTES, VERTEX_BYTES};
+use relief::render::{render_still, StillReport};
 use relief::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
 use relief::sys::progress::Progress;
 
@@ -217,7 +217,7 @@ fn render_golden(g: &Golden, gpu: &Gpu) -> (image::RgbaImage, StillReport) {
     let t = terrain(g.dem);
     let cam = camera(g.eye, g.look, 320, 200);
     let options = RefineOptions { tolerance_px: g.tolerance_px, morph_ratio: g.geomorph, ..Default::default() };
-    render_still(gpu, &t, &cam, &options, DrawStyle { wireframe: g.wireframe }, 1, Progress::hidden()).unwrap()
+    render_still(gpu, t, &cam, &options, DrawStyle { wireframe: g.wireframe }, 1, Progress::hidden()).unwrap()
 }
 
 #[test]

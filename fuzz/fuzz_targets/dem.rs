@@ -15,7 +15,7 @@ const NAMES: [&str; 6] = ["in.tif", "in.png", "in.exr", "N47E008.hgt", "in.asc",
 fuzz_target!(|data: &[u8]| {
     let Some((&pick, bytes)) = data.split_first() else { return };
     let (_dir, path) = common::input_file(NAMES[pick as usize % NAMES.len()], bytes);
-    if let Ok(source) = relief::dem::open(&path, None) {
+    if let Ok(source) = relief_core::dem::open(&path, None) {
         dem_stream::stream(source);
     }
 });

@@ -3,7 +3,7 @@
 //! grayscale PNG read as Terrain-RGB, …): the first byte picks the format, the rest is the file.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use relief::dem::DemFormat;
+use relief_core::dem::DemFormat;
 
 #[path = "common.rs"]
 mod common;
@@ -15,7 +15,7 @@ fuzz_target!(|data: &[u8]| {
     let format = DemFormat::ALL[pick as usize % DemFormat::ALL.len()];
     // A tile name, so the .hgt reader also derives its spacing.
     let (_dir, path) = common::input_file("S12W077.dem", bytes);
-    if let Ok(source) = relief::dem::open(&path, Some(format)) {
+    if let Ok(source) = relief_core::dem::open(&path, Some(format)) {
         dem_stream::stream(source);
     }
 });

@@ -3,7 +3,7 @@
 
 const MAX_SAMPLES: u64 = 1 << 20;
 
-pub fn stream(mut source: Box<dyn relief::dem::DemSource>) {
+pub fn stream(mut source: Box<dyn relief_core::dem::DemSource>) {
     let info = source.info().clone();
     let mut seen = 0u64;
     let _ = source.read(&mut |run| {
@@ -18,7 +18,7 @@ pub fn stream(mut source: Box<dyn relief::dem::DemSource>) {
         );
         seen += run.values.len() as u64;
         if seen > MAX_SAMPLES {
-            return Err(relief::Error::InvalidArgument("fuzz: enough samples".into()));
+            return Err(relief_core::Error::InvalidArgument("fuzz: enough samples".into()));
         }
         Ok(())
     });

@@ -10,7 +10,7 @@ const NAMES: [&str; 5] = ["in.off", "in.ply", "in.obj", "in.ply.gz", "in.off.gz"
 fuzz_target!(|data: &[u8]| {
     let Some((&pick, bytes)) = data.split_first() else { return };
     let (_dir, path) = common::input_file(NAMES[pick as usize % NAMES.len()], bytes);
-    if let Ok(mesh) = relief::mesh::read_mesh(&path) {
+    if let Ok(mesh) = relief_core::mesh::read_mesh(&path) {
         let _ = mesh.bounds();
     }
 });

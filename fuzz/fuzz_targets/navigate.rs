@@ -6,9 +6,9 @@
 #![no_main]
 use glam::DVec3;
 use libfuzzer_sys::fuzz_target;
-use relief::format::metanode::MetaNodeFile;
-use relief::metanode::navigate::{MetaStore, NavOptions, Navigator, PagedStore};
-use relief::pager::Access;
+use relief_core::format::metanode::MetaNodeFile;
+use relief_core::metanode::navigate::{MetaStore, NavOptions, Navigator, PagedStore};
+use relief_core::pager::Access;
 
 #[path = "common.rs"]
 mod common;
@@ -29,7 +29,7 @@ fuzz_target!(|data: &[u8]| {
     }
 });
 
-fn cameras(f: &MetaNodeFile) -> Vec<relief::camera::Camera> {
+fn cameras(f: &MetaNodeFile) -> Vec<relief_core::camera::Camera> {
     let b = f.header().bounds;
     let (lo, hi) = (DVec3::from(b.min), DVec3::from(b.max));
     let centre = (lo + hi) / 2.0;
@@ -38,11 +38,11 @@ fn cameras(f: &MetaNodeFile) -> Vec<relief::camera::Camera> {
     let looks = [centre, centre, centre + DVec3::new(0.0, 1.0, 0.0) * size];
     eyes.iter()
         .zip(looks)
-        .filter_map(|(&eye, look)| relief::camera::Camera::new(eye, look, DVec3::Z, 60.0, 320, 200).ok())
+        .filter_map(|(&eye, look)| relief_core::camera::Camera::new(eye, look, DVec3::Z, 60.0, 320, 200).ok())
         .collect()
 }
 
-fn fly<S: MetaStore>(mut nav: Navigator<S>, cameras: &[relief::camera::Camera]) {
+fn fly<S: MetaStore>(mut nav: Navigator<S>, cameras: &[relief_core::camera::Camera]) {
     for camera in cameras.iter().chain(cameras.iter().rev()) {
         if nav.update(camera, 1.0).is_err() {
             return;

@@ -8,14 +8,14 @@ use libfuzzer_sys::fuzz_target;
 #[path = "common.rs"]
 mod common;
 
-use relief::flight::frame::MeshFrameSource;
-use relief::pages::fetch::{FetchOptions, PageSource};
-use relief::format::pages::PageFile;
+use relief_core::flight::frame::FrameSource;
+use relief_core::pages::fetch::{FetchOptions, PageSource};
+use relief_core::format::pages::PageFile;
 
 fuzz_target!(|data: &[u8]| {
     let (_dir, path) = common::input_file("in.rpg", &stamp(data));
     let Ok(f) = PageFile::open(&path) else { return };
-    let read = PageFile::open_with(&path, relief::pager::Access::Read).ok();
+    let read = PageFile::open_with(&path, relief_core::pager::Access::Read).ok();
     for p in 0..f.header().pages.min(1 << 12) as u32 {
         if let Some(Ok(page)) = read.as_ref().map(|r| r.page(p)) {
             walk(f.decode(p, &page));
@@ -30,13 +30,13 @@ fuzz_target!(|data: &[u8]| {
     let mut source = PageSource::new(f, FetchOptions::default());
     for eye in [centre + glam::DVec3::new(d, 0.3 * d, 0.5 * d), centre, centre - glam::DVec3::new(0.0, d, 0.0)] {
         let look = centre + glam::DVec3::new(0.1 * d, 0.0, 0.0);
-        if let Ok(camera) = relief::camera::Camera::new(eye, look, glam::DVec3::Y, 60.0, 64, 64) {
+        if let Ok(camera) = relief_core::camera::Camera::new(eye, look, glam::DVec3::Y, 60.0, 64, 64) {
             let _ = source.update(&camera, 1.0).map(|_| source.triangles().len());
         }
     }
 });
 
-fn walk(view: relief::Result<relief::format::pages::PageView<'_>>) {
+fn walk(view: relief_core::Result<relief_core::format::pages::PageView<'_>>) {
     if let Ok(v) = view {
         let mut out = Vec::new();
         v.append_triangles(&mut out);

@@ -1,79 +1,147 @@
-//! `relief layouts`: the terrain paper's central experiment. A flight is replayed over the same
-//! terrain stored in each index layout, and the pages refinement touches are counted: in an LRU
-//! model of a page cache (deterministic, machine-independent; [`crate::pager`]) and, with `os`, as
-//! the process's real page faults after the file is dropped from the OS page cache.
+//! `relief layouts`: the page-fault experiment, for every backend. A flight is replayed over the
+//! same terrain stored in each index layout (the terrain paper's central experiment), and, with
+//! the mesh backends, over the same terrain exported as a mesh, as meta-node trees read through
+//! the map ("Virt") and through the buffer pool ("Ext"), and as disk pages in each page layout.
+//! Every row counts the pages brought in from storage with the same memory:
 //!
-//! Lindstrom & Pascucci report that the hierarchical layouts fault several times less than
-//! row-major and tiled orders; this module measures it and how far each layout is from the lower
-//! bound (the distinct records touched, packed perfectly into pages).
+//! - map and read access: the misses of an LRU model of a page cache of that size, fed by what the
+//!   file's pager takes from the file ([`crate::pager::Pager::observe`]): deterministic,
+//!   identical on every machine;
+//! - pool access: the pool's own loads, the pool being that size (its I/O thread is held while a
+//!   frame adapts and drained after it, so the loads do not depend on timing);
+//! - with `os`, the process's real major faults and bytes read from storage on cold runs.
+//!
+//! Lindstrom & Pascucci report that the hierarchical terrain layouts fault several times less
+//! than row-major and tiled orders; El-Sana & Chiang that their explicit pool reads less than the
+//! OS paging the tree; Sajadi et al. that spatial page orders read fewer pages than the input
+//! order. Each row also says how far it is from the lower bound: the distinct bytes read, packed
+//! perfectly into pages.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use serde::Serialize;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::flight::frame::FrameSource;
+use crate::format::metanode::MetaNodeFile;
+use crate::format::pages::{PageFile, PageLayout};
 use crate::format::terrain::{TerrainFile, RECORD_BYTES};
 use crate::layout::LayoutKind;
-use crate::pager::{drop_from_page_cache, Granules, LruCache, LruTrace, MemoryCap, PageGeometry};
+use crate::metanode::blocking::BlockingOptions;
+use crate::metanode::build::BuildOptions;
+use crate::metanode::navigate::{NavOptions, Navigator, PagedStore};
+use crate::metanode::VdtMetric;
+use crate::pager::{drop_from_page_cache, Access, Granules, LruCache, LruTrace, MemoryCap, OsFaults, PageGeometry};
+use crate::pager::{PageObserver, Pager};
+use crate::pages::build::{build_page_file, PageBuildOptions};
+use crate::pages::fetch::{FetchOptions, PageSource};
 use crate::preprocess::convert::{convert, relayout, ConvertOptions};
 use crate::refine::{RefineOptions, Refiner, Strip};
-use crate::sys::mem;
 use crate::sys::progress::Progress;
+
+/// The backends the experiment can run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Backend {
+    /// The terrain's refinement, one row per index layout.
+    Terrain,
+    /// Meta-node trees of the terrain's mesh, through the map (virt) and the pool (ext).
+    MetaNode,
+    /// Disk pages of the terrain's mesh, one row per page layout (read access, as the paper).
+    Pages,
+}
+
+impl Backend {
+    pub const ALL: [Backend; 3] = [Backend::Terrain, Backend::MetaNode, Backend::Pages];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Terrain => "terrain",
+            Backend::MetaNode => "meta-node",
+            Backend::Pages => "pages",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Backend> {
+        Backend::ALL.into_iter().find(|b| b.name() == name || (name == "metanode" && *b == Backend::MetaNode))
+    }
+}
 
 /// What to measure.
 #[derive(Clone, Debug)]
 pub struct LayoutsOptions {
-    /// Page cache size of the model, bytes.
+    /// Memory of every row (the model's page cache, or the pool), bytes.
     pub memory_bytes: u64,
     pub page_bytes: u64,
     pub tolerances_px: Vec<f64>,
+    /// The terrain's index layouts (rows of the terrain backend).
     pub layouts: Vec<LayoutKind>,
+    pub backends: Vec<Backend>,
+    /// The mesh backends' input: the terrain's valid window as a mesh of every `mesh_step`-th post.
+    pub mesh_step: u32,
     pub width_px: u32,
     pub height_px: u32,
     pub fov_x_deg: f64,
-    /// Also count the OS's page faults on cold, readahead-free mapped runs.
+    /// Also count the OS's page faults and storage reads on cold, readahead-free runs.
     pub os: bool,
     /// Run the OS runs under a cgroup memory limit of this many bytes (see `pager::MemoryCap`).
     pub os_cap_bytes: Option<u64>,
     pub progress: Progress,
 }
 
-/// OS page faults of one run (mapped file, dropped from the page cache first, `MADV_RANDOM`).
+/// OS counts of one cold run (the file dropped from the page cache, readahead off).
 #[derive(Clone, Debug, Serialize)]
-pub struct OsFaults {
+pub struct OsFaultCounts {
     pub major: u64,
-    pub minor: u64,
     pub major_per_frame_mean: f64,
     pub major_per_frame_max: u64,
+    /// Bytes read from storage (`/proc/self/io`), the measure for read and pool access.
+    pub read_bytes: u64,
     /// Major faults of each frame.
     pub major_per_frame: Vec<u64>,
 }
 
-/// One layout at one tolerance.
+/// One backend, layout and access at one tolerance.
 #[derive(Clone, Debug, Serialize)]
-pub struct LayoutRun {
+pub struct FaultRun {
+    pub backend: Backend,
+    /// The terrain's index layout, "virt" or "ext" for meta-node trees, the page layout.
     pub layout: String,
+    pub access: Access,
     pub tolerance: f64,
-    /// Misses of the LRU model over the whole flight.
+    /// Pages brought in from storage over the whole flight: the model's misses, or the pool's loads.
     pub faults: u64,
     pub faults_per_frame_mean: f64,
     pub faults_per_frame_max: u64,
+    /// Different pages read.
     pub distinct_pages: u64,
     /// faults × page size.
     pub bytes_read: u64,
-    pub refine_ms_per_frame: f64,
-    /// ⌈distinct records read × record size / page size⌉.
+    /// The backend's own work per frame (refinement, adaptation, fetch), ms.
+    pub update_ms_per_frame: f64,
+    /// Triangles drawn per frame: a row that reads less because it draws less shows here.
+    pub triangles_per_frame_mean: f64,
+    /// ⌈distinct bytes read / page size⌉.
     pub lower_bound: u64,
     pub ratio_to_lower_bound: f64,
-    /// faults / row-major's faults at the same tolerance (null without a row-major run).
-    pub ratio_to_row_major: Option<f64>,
-    pub records_read: u64,
+    /// faults / the faults of the backend's first row at the same tolerance (row-major for
+    /// terrains, virt for meta-node trees, raster for pages); null when that row is missing.
+    pub ratio_to_first: Option<f64>,
     pub file_bytes: u64,
-    pub os: Option<OsFaults>,
+    pub os: Option<OsFaultCounts>,
     /// Faults per frame (for the plots).
     pub faults_per_frame: Vec<u64>,
+}
+
+/// The mesh the mesh backends were run on.
+#[derive(Clone, Debug, Serialize)]
+pub struct MeshInput {
+    pub step: u32,
+    pub vertices: u64,
+    pub triangles: u64,
 }
 
 /// The whole experiment.
@@ -84,9 +152,20 @@ pub struct LayoutsReport {
     pub memory_bytes: u64,
     pub page_bytes: u64,
     pub cache_pages: u64,
-    pub layouts: Vec<LayoutRun>,
+    pub mesh: Option<MeshInput>,
+    pub runs: Vec<FaultRun>,
     /// How the OS counts were taken, or why they could not be.
     pub os_note: Option<String>,
+}
+
+/// A cache file name for `input` in `what` (keyed by the input's name, size and modification time).
+fn cached(input: &Path, cache_dir: &Path, what: &str) -> Result<PathBuf> {
+    let meta = std::fs::metadata(input).map_err(|e| Error::io(input, e))?;
+    let mtime =
+        meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map_or(0, |d| d.as_secs());
+    let key = xxhash_rust::xxh3::xxh3_64(format!("{}:{}:{}", input.display(), meta.len(), mtime).as_bytes());
+    let stem = input.file_stem().map_or("terrain".into(), |s| s.to_string_lossy().into_owned());
+    Ok(cache_dir.join(format!("{stem}-{key:016x}.{what}")))
 }
 
 /// The terrain file of `input` in layout `kind`: `input` itself if it is a terrain file in that
@@ -99,12 +178,7 @@ pub fn terrain_in_layout(input: &Path, kind: LayoutKind, cache_dir: &Path, progr
             return Ok(input.to_path_buf());
         }
     }
-    let meta = std::fs::metadata(input).map_err(|e| Error::io(input, e))?;
-    let mtime =
-        meta.modified().ok().and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok()).map_or(0, |d| d.as_secs());
-    let key = xxhash_rust::xxh3::xxh3_64(format!("{}:{}:{}", input.display(), meta.len(), mtime).as_bytes());
-    let stem = input.file_stem().map_or("terrain".into(), |s| s.to_string_lossy().into_owned());
-    let out = cache_dir.join(format!("{stem}-{key:016x}.{}.relief", kind.name()));
+    let out = cached(input, cache_dir, &format!("{}.relief", kind.name()))?;
     if TerrainFile::open(&out).is_ok() {
         return Ok(out);
     }
@@ -118,83 +192,275 @@ pub fn terrain_in_layout(input: &Path, kind: LayoutKind, cache_dir: &Path, progr
     Ok(out)
 }
 
-/// Replays `cameras` over `terrain` at `tolerance_px` through the LRU model.
-pub fn run_model(
-    terrain: &TerrainFile,
+/// The LRU model of `memory_bytes` observing `pager`.
+fn attach_model(
+    pager: &Pager,
+    memory_bytes: u64,
+    geometry: PageGeometry,
+    granules: Option<Granules>,
+) -> Result<Arc<LruTrace>> {
+    let cache = LruCache::new(memory_bytes, geometry)?;
+    let trace = Arc::new(match granules {
+        Some(g) => LruTrace::with_granules(cache, geometry, g),
+        None => LruTrace::new(cache, geometry),
+    });
+    pager.observe(trace.clone())?;
+    Ok(trace)
+}
+
+/// The figures of a run from its per-frame faults and the model's distinct reads.
+#[allow(clippy::too_many_arguments)]
+fn run_of(
+    backend: Backend,
+    layout: &str,
+    access: Access,
+    tolerance: f64,
+    per_frame: Vec<u64>,
+    trace: &LruTrace,
+    update_s: f64,
+    triangles: u64,
+    file_bytes: u64,
+) -> FaultRun {
+    let faults: u64 = per_frame.iter().sum();
+    let frames = per_frame.len().max(1) as f64;
+    let lower_bound = trace.lower_bound_pages();
+    FaultRun {
+        backend,
+        layout: layout.into(),
+        access,
+        tolerance,
+        faults,
+        faults_per_frame_mean: faults as f64 / frames,
+        faults_per_frame_max: per_frame.iter().copied().max().unwrap_or(0),
+        distinct_pages: trace.stats().distinct_pages,
+        bytes_read: faults * trace.geometry().page_bytes,
+        update_ms_per_frame: update_s * 1e3 / frames,
+        triangles_per_frame_mean: triangles as f64 / frames,
+        lower_bound,
+        ratio_to_lower_bound: if lower_bound > 0 { faults as f64 / lower_bound as f64 } else { 0.0 },
+        ratio_to_first: None,
+        file_bytes,
+        os: None,
+        faults_per_frame: per_frame,
+    }
+}
+
+/// Replays `cameras` over the terrain at `path` at `tolerance_px` through the LRU model.
+pub fn run_terrain(
+    path: &Path,
     cameras: &[Camera],
     tolerance_px: f64,
     memory_bytes: u64,
     geometry: PageGeometry,
-) -> Result<LayoutRun> {
+) -> Result<FaultRun> {
+    let terrain = TerrainFile::open(path)?;
     let h = terrain.header();
     let granules = Granules { first: h.payload_offset, bytes: RECORD_BYTES as u64, count: h.records };
-    let trace = LruTrace::with_granules(LruCache::new(memory_bytes, geometry)?, geometry, granules);
+    let trace = attach_model(terrain.pager(), memory_bytes, geometry, Some(granules))?;
     let options = RefineOptions { tolerance_px, ..Default::default() };
-    let mut refiner = Refiner::new(1)?;
-    let mut strip = Strip::new();
+    let (mut refiner, mut strip) = (Refiner::new(1)?, Strip::new());
     let mut per_frame = Vec::with_capacity(cameras.len());
-    let mut refine_s = 0.0;
+    let (mut update_s, mut triangles) = (0.0, 0);
     for camera in cameras {
         crate::sys::cancel::check()?;
         let t0 = Instant::now();
-        refiner.refine_observed(terrain, &trace, camera, &options, &mut strip)?;
-        refine_s += t0.elapsed().as_secs_f64();
-        per_frame.push(crate::pager::PageObserver::take(&trace).faults);
+        refiner.refine_file(&terrain, camera, &options, &mut strip)?;
+        update_s += t0.elapsed().as_secs_f64();
+        per_frame.push(trace.take().faults);
+        triangles += strip.triangle_counts().0;
     }
-    let stats = trace.stats();
-    let records_read = trace.distinct_bytes() / RECORD_BYTES as u64;
-    let lower_bound = trace.lower_bound_pages();
-    let frames = cameras.len().max(1) as f64;
-    Ok(LayoutRun {
-        layout: terrain.header().layout.name().into(),
-        tolerance: tolerance_px,
-        faults: stats.misses,
-        faults_per_frame_mean: stats.misses as f64 / frames,
-        faults_per_frame_max: per_frame.iter().copied().max().unwrap_or(0),
-        distinct_pages: stats.distinct_pages,
-        bytes_read: stats.misses * geometry.page_bytes,
-        refine_ms_per_frame: refine_s * 1e3 / frames,
-        lower_bound,
-        ratio_to_lower_bound: if lower_bound > 0 { stats.misses as f64 / lower_bound as f64 } else { 0.0 },
-        ratio_to_row_major: None,
-        records_read,
-        file_bytes: terrain.header().payload_offset + terrain.header().payload_bytes,
-        os: None,
-        faults_per_frame: per_frame,
-    })
+    let file_bytes = h.payload_offset + h.payload_bytes;
+    let layout = h.layout.name();
+    Ok(run_of(Backend::Terrain, layout, Access::Map, tolerance_px, per_frame, &trace, update_s, triangles, file_bytes))
 }
 
-/// Replays `cameras` over the mapped file at `path`, cold: the file is dropped from the page
-/// cache, mapped afresh with readahead off, and the process's faults counted per frame.
-pub fn run_os(path: &Path, cameras: &[Camera], tolerance_px: f64) -> Result<OsFaults> {
-    drop_from_page_cache(path)?;
-    let terrain = TerrainFile::open(path)?;
-    terrain.advise_random()?;
-    let options = RefineOptions { tolerance_px, ..Default::default() };
-    let mut refiner = Refiner::new(1)?;
-    let mut strip = Strip::new();
-    let (major0, minor0) = mem::page_faults();
+/// Replays `cameras` over the meta-node file at `path` with `access` (map: the model of the OS
+/// page cache; pool: the pool's loads, the pool held during each frame and drained after it).
+pub fn run_metanode(
+    path: &Path,
+    access: Access,
+    cameras: &[Camera],
+    tolerance_px: f64,
+    memory_bytes: u64,
+    geometry: PageGeometry,
+) -> Result<FaultRun> {
+    let file = MetaNodeFile::open_with(path, access)?;
+    let trace = attach_model(file.pager(), memory_bytes, geometry, None)?;
+    let mut nav = Navigator::new(&file, PagedStore::new(&file), nav_options())?;
+    let pool = file.pager().pool();
+    // The root meta-nodes loaded at start are not the flight's.
+    trace.take();
+    let mut loaded = file.pager().reads().pages;
     let mut per_frame = Vec::with_capacity(cameras.len());
-    let mut last = major0;
+    let (mut update_s, mut triangles) = (0.0, 0);
     for camera in cameras {
         crate::sys::cancel::check()?;
-        refiner.refine_file(&terrain, camera, &options, &mut strip)?;
-        let (major, _) = mem::page_faults();
-        per_frame.push(major - last);
-        last = major;
+        let t0 = Instant::now();
+        if let Some(p) = pool {
+            p.hold(true);
+        }
+        nav.update(camera, tolerance_px)?;
+        update_s += t0.elapsed().as_secs_f64();
+        triangles += nav.triangle_count() as u64;
+        let model = trace.take().faults;
+        per_frame.push(match pool {
+            Some(p) => {
+                p.hold(false);
+                p.drain()?;
+                let now = file.pager().reads().pages;
+                let frame = now - loaded;
+                loaded = now;
+                frame
+            }
+            None => model,
+        });
     }
-    let (major1, minor1) = mem::page_faults();
-    let major = major1 - major0;
-    Ok(OsFaults {
+    let layout = if pool.is_some() { "ext" } else { "virt" };
+    let file_bytes = file.pager().source().len();
+    Ok(run_of(Backend::MetaNode, layout, access, tolerance_px, per_frame, &trace, update_s, triangles, file_bytes))
+}
+
+/// The navigation of the experiment: `relief mesh fly`'s default prefetch (the frontier's blocks).
+fn nav_options() -> NavOptions {
+    NavOptions { prefetch: crate::metanode::navigate::Prefetch::Frontier, ..NavOptions::default() }
+}
+
+/// Replays `cameras` over the page file at `path` (read access, as the paper's fetch).
+pub fn run_pages(
+    path: &Path,
+    cameras: &[Camera],
+    tolerance_px: f64,
+    memory_bytes: u64,
+    geometry: PageGeometry,
+) -> Result<FaultRun> {
+    let file = PageFile::open_with(path, Access::Read)?;
+    let layout = file.header().layout.name();
+    let file_bytes = file.pager().source().len();
+    let trace = attach_model(file.pager(), memory_bytes, geometry, None)?;
+    let mut source = PageSource::new(file, FetchOptions::default());
+    let mut per_frame = Vec::with_capacity(cameras.len());
+    let (mut update_s, mut triangles) = (0.0, 0);
+    for camera in cameras {
+        crate::sys::cancel::check()?;
+        let t0 = Instant::now();
+        let stats = source.update(camera, tolerance_px)?;
+        update_s += t0.elapsed().as_secs_f64();
+        per_frame.push(trace.take().faults);
+        triangles += stats.triangles;
+    }
+    Ok(run_of(Backend::Pages, layout, Access::Read, tolerance_px, per_frame, &trace, update_s, triangles, file_bytes))
+}
+
+/// The same flight cold: `path` dropped from the page cache, opened afresh with readahead off,
+/// the process's major faults and storage reads counted per frame.
+fn run_os(
+    backend: Backend,
+    path: &Path,
+    access: Access,
+    cameras: &[Camera],
+    tolerance_px: f64,
+) -> Result<OsFaultCounts> {
+    drop_from_page_cache(path)?;
+    let os = OsFaults::start();
+    let mut per_frame = Vec::with_capacity(cameras.len());
+    let mut read_bytes = 0;
+    let mut frame = |f: crate::pager::Faults| {
+        per_frame.push(f.faults);
+        read_bytes += f.bytes_read;
+    };
+    match backend {
+        Backend::Terrain => {
+            let terrain = TerrainFile::open(path)?;
+            terrain.advise_random()?;
+            let options = RefineOptions { tolerance_px, ..Default::default() };
+            let (mut refiner, mut strip) = (Refiner::new(1)?, Strip::new());
+            os.take();
+            for camera in cameras {
+                crate::sys::cancel::check()?;
+                refiner.refine_file(&terrain, camera, &options, &mut strip)?;
+                frame(os.take());
+            }
+        }
+        Backend::MetaNode => {
+            let file = MetaNodeFile::open_with(path, access)?;
+            file.advise_random()?;
+            let mut nav = Navigator::new(&file, PagedStore::new(&file), nav_options())?;
+            os.take();
+            for camera in cameras {
+                crate::sys::cancel::check()?;
+                if let Some(p) = file.pager().pool() {
+                    p.hold(true);
+                }
+                nav.update(camera, tolerance_px)?;
+                if let Some(p) = file.pager().pool() {
+                    p.hold(false);
+                    p.drain()?;
+                }
+                frame(os.take());
+            }
+        }
+        Backend::Pages => {
+            let file = PageFile::open_with(path, access)?;
+            file.advise_random()?;
+            let mut source = PageSource::new(file, FetchOptions::default());
+            os.take();
+            for camera in cameras {
+                crate::sys::cancel::check()?;
+                source.update(camera, tolerance_px)?;
+                frame(os.take());
+            }
+        }
+    }
+    let major: u64 = per_frame.iter().sum();
+    Ok(OsFaultCounts {
         major,
-        minor: minor1 - minor0,
         major_per_frame_mean: major as f64 / cameras.len().max(1) as f64,
         major_per_frame_max: per_frame.iter().copied().max().unwrap_or(0),
+        read_bytes,
         major_per_frame: per_frame,
     })
 }
 
-/// Runs every layout at every tolerance over `cameras`.
+/// The mesh backends' files for `input`: the terrain (in `layout_file`) as a mesh of every
+/// `step`-th post, its meta-node trees and its page files in every page layout, built once into
+/// `cache_dir`.
+fn mesh_files(
+    input: &Path,
+    layout_file: &Path,
+    step: u32,
+    cache_dir: &Path,
+    backends: &[Backend],
+    progress: Progress,
+) -> Result<(MeshInput, Option<PathBuf>, Vec<PathBuf>)> {
+    let terrain = TerrainFile::open(layout_file)?;
+    let mesh = crate::mesh::terrain_mesh(&terrain, step)?;
+    let info = MeshInput { step, vertices: mesh.positions.len() as u64, triangles: mesh.triangles.len() as u64 };
+    let mut tree = None;
+    if backends.contains(&Backend::MetaNode) {
+        let out = cached(input, cache_dir, &format!("step{step}.rmn"))?;
+        if MetaNodeFile::open(&out).is_err() {
+            let mut build = BuildOptions::new(u64::MAX / 4, VdtMetric::Length);
+            build.progress = progress;
+            crate::metanode::build_tree(mesh.clone(), &out, None, &build, BlockingOptions::default())?;
+        }
+        tree = Some(out);
+    }
+    let mut pages = Vec::new();
+    if backends.contains(&Backend::Pages) {
+        for layout in PageLayout::ALL {
+            let out = cached(input, cache_dir, &format!("step{step}.{}.rpg", layout.name()))?;
+            if PageFile::open(&out).is_err() {
+                let mut options = PageBuildOptions::new(4096, layout);
+                options.progress = progress;
+                build_page_file(&mesh, &out, &options)?;
+            }
+            pages.push(out);
+        }
+    }
+    Ok((info, tree, pages))
+}
+
+/// Runs every backend's rows at every tolerance over `cameras`.
 pub fn run_layouts(
     input: &Path,
     cameras: &[Camera],
@@ -212,46 +478,74 @@ pub fn run_layouts(
     if options.tolerances_px.iter().any(|t| !(t.is_finite() && *t > 0.0)) || options.tolerances_px.is_empty() {
         return Err(Error::InvalidArgument("tolerances must be positive pixels".into()));
     }
+    if options.backends.is_empty() {
+        return Err(Error::InvalidArgument("no backend to run".into()));
+    }
+    std::fs::create_dir_all(cache_dir).map_err(|e| Error::io(cache_dir, e))?;
+    // Every run of the flight: (backend, file, access).
+    let mut plan: Vec<(Backend, PathBuf, Access)> = Vec::new();
+    let mut first_layout = None;
+    if options.backends.contains(&Backend::Terrain) {
+        for &kind in &options.layouts {
+            let path = terrain_in_layout(input, kind, cache_dir, options.progress)?;
+            first_layout.get_or_insert(path.clone());
+            plan.push((Backend::Terrain, path, Access::Map));
+        }
+    }
+    let mut mesh = None;
+    if options.backends.iter().any(|b| *b != Backend::Terrain) {
+        let layout_file = match &first_layout {
+            Some(p) => p.clone(),
+            None => terrain_in_layout(input, LayoutKind::Interleaved, cache_dir, options.progress)?,
+        };
+        let (info, tree, pages) =
+            mesh_files(input, &layout_file, options.mesh_step, cache_dir, &options.backends, options.progress)?;
+        mesh = Some(info);
+        if let Some(t) = tree {
+            plan.push((Backend::MetaNode, t.clone(), Access::Map));
+            plan.push((Backend::MetaNode, t, Access::Pool { bytes: options.memory_bytes }));
+        }
+        plan.extend(pages.into_iter().map(|p| (Backend::Pages, p, Access::Read)));
+    }
     let mut runs = Vec::new();
     let mut os_note = None;
-    let bar = options.progress.bar("layouts", (options.layouts.len() * options.tolerances_px.len()) as u64, "runs");
-    for &kind in &options.layouts {
-        let path = terrain_in_layout(input, kind, cache_dir, options.progress)?;
+    let bar = options.progress.bar("layouts", (plan.len() * options.tolerances_px.len()) as u64, "runs");
+    for (backend, path, access) in &plan {
         for &tolerance in &options.tolerances_px {
-            let mut run = {
-                let terrain = TerrainFile::open(&path)?;
-                run_model(&terrain, cameras, tolerance, options.memory_bytes, geometry)?
+            let m = options.memory_bytes;
+            let mut run = match backend {
+                Backend::Terrain => run_terrain(path, cameras, tolerance, m, geometry)?,
+                Backend::MetaNode => run_metanode(path, *access, cameras, tolerance, m, geometry)?,
+                Backend::Pages => run_pages(path, cameras, tolerance, m, geometry)?,
             };
             if options.os {
-                let cap = match options.os_cap_bytes {
-                    Some(b) => match MemoryCap::apply(b) {
-                        Ok(c) => Some(c),
-                        Err(e) => {
-                            os_note = Some(format!("OS faults not measured: {e}"));
-                            runs.push(run);
-                            bar.inc(1);
-                            continue;
-                        }
-                    },
-                    None => None,
-                };
-                let measured = run_os(&path, cameras, tolerance);
-                drop(cap);
-                match measured {
-                    Ok(os) => {
-                        run.os = Some(os);
-                        os_note.get_or_insert_with(|| {
-                            let cap = match options.os_cap_bytes {
-                                Some(b) => format!("under a cgroup v1 memory cap of {b} bytes"),
-                                None => "without a memory cap (--os-cap sets one)".into(),
-                            };
-                            format!(
-                                "OS faults: file dropped from the page cache (posix_fadvise DONTNEED), mapped \
-                                 afresh with madvise(MADV_RANDOM), major faults from getrusage, {cap}"
-                            )
-                        });
+                let cap = match options.os_cap_bytes.map(MemoryCap::apply).transpose() {
+                    Ok(c) => Some(c),
+                    Err(e) => {
+                        os_note = Some(format!("OS faults not measured: {e}"));
+                        None
                     }
-                    Err(e) => os_note = Some(format!("OS faults not measured: {e}")),
+                };
+                if let Some(cap) = cap {
+                    let measured = run_os(*backend, path, *access, cameras, tolerance);
+                    drop(cap);
+                    match measured {
+                        Ok(os) => {
+                            run.os = Some(os);
+                            os_note.get_or_insert_with(|| {
+                                let cap = match options.os_cap_bytes {
+                                    Some(b) => format!("under a cgroup v1 memory cap of {b} bytes"),
+                                    None => "without a memory cap".into(),
+                                };
+                                format!(
+                                    "OS counts: each file dropped from the page cache (posix_fadvise DONTNEED) and \
+                                     read afresh with readahead off (MADV_RANDOM, POSIX_FADV_RANDOM); major faults \
+                                     from getrusage, storage reads from /proc/self/io, {cap}"
+                                )
+                            });
+                        }
+                        Err(e) => os_note = Some(format!("OS faults not measured: {e}")),
+                    }
                 }
             }
             runs.push(run);
@@ -259,15 +553,11 @@ pub fn run_layouts(
         }
     }
     bar.finish_and_clear();
-    // Ratios to row-major at the same tolerance.
-    let row_major: Vec<(f64, u64)> =
-        runs.iter().filter(|r| r.layout == LayoutKind::RowMajor.name()).map(|r| (r.tolerance, r.faults)).collect();
-    for r in &mut runs {
-        r.ratio_to_row_major =
-            row_major
-                .iter()
-                .find(|(t, _)| *t == r.tolerance)
-                .map(|&(_, f)| if f > 0 { r.faults as f64 / f as f64 } else { 0.0 });
+    // Ratios to each backend's first row at the same tolerance.
+    for k in 0..runs.len() {
+        let first =
+            runs.iter().find(|r| r.backend == runs[k].backend && r.tolerance == runs[k].tolerance).map(|r| r.faults);
+        runs[k].ratio_to_first = first.map(|f| if f > 0 { runs[k].faults as f64 / f as f64 } else { 0.0 });
     }
     Ok(LayoutsReport {
         input: input.display().to_string(),
@@ -275,7 +565,8 @@ pub fn run_layouts(
         memory_bytes: options.memory_bytes,
         page_bytes: options.page_bytes,
         cache_pages,
-        layouts: runs,
+        mesh,
+        runs,
         os_note,
     })
 }

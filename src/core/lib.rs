@@ -17,6 +17,7 @@ pub mod faults;
 pub mod flight;
 pub mod format;
 pub mod layout;
+pub mod lod;
 pub mod mesh;
 pub mod metanode;
 pub mod pager;

@@ -1,4 +1,4 @@
-//! `relief mesh view` (and every mesh backend) in a window: a [`MeshFrameSource`] adapted to the
+//! `relief mesh view` (and every mesh backend) in a window: a [`FrameSource`] adapted to the
 //! camera each frame and drawn by the mesh renderer. Keys besides the shared ones (`window`): F
 //! freezes the adaptation (fly out and look at the adapted mesh), T toggles the wireframe.
 
@@ -8,9 +8,10 @@ use winit::keyboard::KeyCode;
 use super::{FlyCamera, Scene, WindowSettings};
 use crate::camera::{Camera, UpAxis};
 use crate::error::Result;
+use crate::flight::frame::{FrameSource, FrameStats};
 use crate::flight::{orbit_box, OrbitOptions};
-use crate::mesh_fly::{MeshFrameSource, MeshFrameStats, MeshStage};
 use crate::render::mesh::MESH_FRAME_UNIFORM_BYTES;
+use crate::render::MeshStage;
 use crate::render::{Gpu, MeshStyle};
 
 /// Settings of an interactive flight around a mesh.
@@ -28,7 +29,7 @@ pub struct MeshWindowOptions {
 }
 
 /// Opens a window and flies around what `source` adapts until the window is closed.
-pub fn mesh_window(source: &mut dyn MeshFrameSource, title: &str, options: MeshWindowOptions) -> Result<()> {
+pub fn mesh_window(source: &mut dyn FrameSource, title: &str, options: MeshWindowOptions) -> Result<()> {
     let settings = options.window.clone();
     let scene = MeshScene {
         source,
@@ -38,7 +39,7 @@ pub fn mesh_window(source: &mut dyn MeshFrameSource, title: &str, options: MeshW
         options,
         stage: None,
         frozen: false,
-        last: MeshFrameStats::default(),
+        last: FrameStats::default(),
         upload_bytes: 0,
         pages_read_total: 0,
     };
@@ -46,7 +47,7 @@ pub fn mesh_window(source: &mut dyn MeshFrameSource, title: &str, options: MeshW
 }
 
 struct MeshScene<'a> {
-    source: &'a mut dyn MeshFrameSource,
+    source: &'a mut dyn FrameSource,
     title: String,
     options: MeshWindowOptions,
     stage: Option<MeshStage>,
@@ -54,7 +55,7 @@ struct MeshScene<'a> {
     wireframe: bool,
     frozen: bool,
     /// The last update's figures.
-    last: MeshFrameStats,
+    last: FrameStats,
     /// Triangle bytes uploaded this frame.
     upload_bytes: u64,
     pages_read_total: u64,
@@ -94,7 +95,7 @@ impl Scene for MeshScene<'_> {
         if !self.frozen {
             self.last = self.source.update(camera, self.tolerance_px)?;
             self.pages_read_total += self.last.pages_read;
-            self.upload_bytes = stage.sync(gpu, &*self.source, &self.last, camera)?;
+            self.upload_bytes = stage.sync(gpu, self.source.frame(), self.last.changed, camera)?;
         }
         Ok(())
     }
@@ -117,8 +118,8 @@ impl Scene for MeshScene<'_> {
         let triangles = self.stage.as_ref().map_or(0, |st| st.renderer.triangles());
         vec![
             ("source", self.options.source_name.clone()),
-            ("adapt", format!("{} ({} splits, {} collapses)", s.adapt(), s.splits, s.collapses)),
-            ("adapt time", format!("{:.2} ms", s.adapt_ms)),
+            ("adapt", format!("{} ({} splits, {} collapses)", s.splits + s.collapses, s.splits, s.collapses)),
+            ("adapt time", format!("{:.2} ms", s.update_ms.unwrap_or(0.0))),
             ("triangles", format!("{triangles}")),
             ("misses", format!("{} ({:.1}%)", s.misses, s.miss_pct())),
             ("pages read", format!("{} ({} in all)", s.pages_read, self.pages_read_total)),

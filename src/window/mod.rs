@@ -25,8 +25,8 @@ use winit::window::{Window, WindowId};
 use crate::camera::{Camera, UpAxis};
 use crate::error::{Error, Result};
 use crate::flight::{FlightPath, PathFrame};
-use crate::fly::save_png;
 use crate::render::offscreen::Offscreen;
+use crate::render::save_png;
 use crate::render::Gpu;
 
 pub use mesh::{mesh_window, MeshWindowOptions};

@@ -11,7 +11,8 @@ use winit::keyboard::KeyCode;
 use super::{FlyCamera, Scene, WindowSettings};
 use crate::camera::{Camera, UpAxis};
 use crate::error::Result;
-use crate::fly::{RefineJob, StripSource, Update};
+use crate::flight::frame::FrameSource;
+use crate::flight::terrain::TerrainSource;
 use crate::format::terrain::TerrainFile;
 use crate::refine::RefineOptions;
 use crate::render::terrain::FRAME_UNIFORM_BYTES;
@@ -44,7 +45,6 @@ pub fn fly_window(terrain: Arc<TerrainFile>, options: WindowOptions) -> Result<(
         drawn: None,
         frozen: false,
         refined_camera: None,
-        seq: 0,
         stats: Stats::default(),
     };
     super::run(scene, settings)
@@ -67,7 +67,7 @@ struct Stats {
 /// The renderer and where its strips come from, once the window's device exists.
 struct Drawn {
     renderer: TerrainRenderer,
-    source: StripSource,
+    source: TerrainSource,
 }
 
 struct TerrainScene {
@@ -80,7 +80,6 @@ struct TerrainScene {
     frozen: bool,
     /// The camera the drawn strip was refined for (shown when frozen).
     refined_camera: Option<Camera>,
-    seq: u64,
     stats: Stats,
 }
 
@@ -109,7 +108,7 @@ impl Scene for TerrainScene {
     fn start(&mut self, gpu: &Gpu, format: wgpu::TextureFormat, start: Option<(DVec3, DVec3)>) -> Result<FlyCamera> {
         let o = &self.options;
         let renderer = TerrainRenderer::new(gpu, &self.terrain, format, RendererOptions::default(), o.progress)?;
-        let source = StripSource::new(self.terrain.clone(), o.threads, !o.sync)?;
+        let source = TerrainSource::new(self.terrain.clone(), o.refine, o.threads, !o.sync)?;
         self.drawn = Some(Drawn { renderer, source });
         Ok(start_camera(&self.terrain, start))
     }
@@ -134,16 +133,14 @@ impl Scene for TerrainScene {
         };
         d.renderer.set_overlay_lines(gpu, &outline);
         if !self.frozen {
-            self.seq += 1;
-            let options = RefineOptions { tolerance_px: self.tolerance_px, cull: self.cull, ..self.options.refine };
-            let job = RefineJob { camera: *cam, options, seq: self.seq };
-            let first = self.refined_camera.is_none();
-            let u: Update = d.source.update(gpu, &mut d.renderer, job, first);
-            self.stats.upload_bytes = u.upload_bytes + FRAME_UNIFORM_BYTES;
-            if u.uploaded {
-                self.stats.refine_ms = u.refine_ms.unwrap_or(0.0);
-                self.stats.strip_upload_bytes = u.upload_bytes;
-                self.stats.lag = u.lag;
+            d.source.set_options(RefineOptions { cull: self.cull, ..self.options.refine });
+            let u = d.source.update(cam, self.tolerance_px)?;
+            let upload_bytes = if u.changed { d.renderer.upload_strip(gpu, d.source.strip()) } else { 0 };
+            self.stats.upload_bytes = upload_bytes + FRAME_UNIFORM_BYTES;
+            self.stats.lag = u.lag_frames;
+            if u.changed {
+                self.stats.refine_ms = u.update_ms.unwrap_or(0.0);
+                self.stats.strip_upload_bytes = upload_bytes;
                 self.refined_camera = Some(*cam);
             }
         } else {

@@ -4,7 +4,12 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, OnceLock};
 
-use relief::render::Gpu;
+use relief::camera::Camera;
+use relief::flight::frame::{fly, FlightOptions, FlightReport, FrameSource};
+use relief::flight::terrain::TerrainSource;
+use relief::format::terrain::TerrainFile;
+use relief::refine::RefineOptions;
+use relief::render::{DrawStyle, Gpu, TerrainPresenter};
 
 pub mod crack;
 
@@ -39,6 +44,32 @@ pub fn gpu() -> std::sync::MutexGuard<'static, Gpu> {
     })
     .lock()
     .unwrap_or_else(|p| p.into_inner())
+}
+
+/// Flies `terrain` headless along `cameras` (all `w` × `h`), drawing every frame as `relief fly
+/// --path` does: refined on the calling thread, or on the refinement thread with `threaded`.
+pub fn fly_terrain(
+    gpu: &Gpu,
+    terrain: &std::sync::Arc<TerrainFile>,
+    cameras: &[Camera],
+    refine: RefineOptions,
+    threaded: bool,
+    frames_out: Option<PathBuf>,
+) -> FlightReport {
+    let (w, h) = (cameras[0].width_px, cameras[0].height_px);
+    let mut source = TerrainSource::new(terrain.clone(), refine, 1, threaded).unwrap();
+    let mut presenter = TerrainPresenter::new(
+        gpu,
+        terrain.clone(),
+        w,
+        h,
+        DrawStyle::default(),
+        relief::sys::progress::Progress::hidden(),
+    )
+    .unwrap();
+    let mut options = FlightOptions::new(w, h, refine.tolerance_px);
+    options.frames_out = frames_out;
+    fly(&mut source as &mut dyn FrameSource, cameras, Some(&mut presenter), &options).unwrap()
 }
 
 /// Tolerance: lavapipe renders deterministically for one Mesa/LLVM build, but another build (or

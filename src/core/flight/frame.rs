@@ -1,106 +1,90 @@
-//! The frame protocol of the mesh backends: what a view-dependent simplification implements
-//! (adapt to a camera, hand over the triangles), its per-frame figures, and the trivial source
-//! ([`StaticMesh`], the whole mesh).
+//! The frame protocol every backend implements, and the one headless flight loop over it.
+//!
+//! A [`FrameSource`] adapts to a camera each frame and hands over what to draw ([`Frame`]): the
+//! terrain's refinement a triangle strip of grid posts ([`super::terrain::TerrainSource`]), the
+//! meta-node navigator and the disk-page fetch a triangle list, [`StaticMesh`] a whole mesh. Each
+//! update reports the same [`FrameStats`], so the backends' figures can be put side by side.
+//!
+//! [`fly`] runs a source along cameras, draws each frame through an optional [`Presenter`] (the
+//! renderer lives outside this crate), and reports one [`FlightReport`] schema for every
+//! backend: per frame the same keys, and per key the mean, median, maximum and total.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use serde::Serialize;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::mesh::{Bounds, Mesh};
+use crate::refine::Strip;
+use crate::sys::progress::Progress;
 
-/// Something that adapts a mesh to a camera each frame (view-dependent simplification).
-pub trait MeshFrameSource {
-    /// Adapts to `camera` at `tolerance_px` and returns what happened this frame.
-    fn update(&mut self, camera: &Camera, tolerance_px: f64) -> Result<MeshFrameStats>;
-    /// The current triangles, 3 world positions each.
-    fn triangles(&self) -> &[[f32; 3]];
-    /// Bounding box of the whole mesh (for paths and the initial view).
+/// What a source hands the renderer for one frame.
+#[derive(Clone, Copy, Debug)]
+pub enum Frame<'a> {
+    /// A terrain: one triangle strip of grid posts (the renderer holds the heights).
+    Strip(&'a Strip),
+    /// A mesh: triangles, three world positions each.
+    Triangles(&'a [[f32; 3]]),
+}
+
+/// A backend flown frame by frame.
+pub trait FrameSource {
+    /// Adapts to `camera` at `tolerance_px` (screen-space error, pixels) and says what happened.
+    fn update(&mut self, camera: &Camera, tolerance_px: f64) -> Result<FrameStats>;
+    /// What to draw now.
+    fn frame(&self) -> Frame<'_>;
+    /// The world box of everything the source can draw (paths, the first view).
     fn bounds(&self) -> Bounds;
-    /// The last update's page fetch, for backends that read whole pages per frame (the disk-page
-    /// backend, `pages::fetch`); `None` for the others.
-    fn page_fetch(&self) -> Option<PageFetchFigures> {
-        None
-    }
+    /// What the source is, for reports ("terrain, interleaved, map", …).
+    fn describe(&self) -> String;
 }
 
-/// One frame's fetch of whole pages (`relief pages fly`).
+/// What one update did: the same fields for every backend, zero where a backend has nothing to
+/// count.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
-pub struct PageFetchFigures {
-    /// Pages read this frame (after culling).
-    pub pages_requested: u64,
-    /// Pages the spatial query named before the per-page box and normal-cone tests.
-    pub pages_candidate: u64,
-    pub bytes_read: u64,
-    /// Σ |page − previous page| over the reads in order, in pages (see `pages::fetch`).
-    pub seek_pages: u64,
-    /// The whole fetch (query, cull, sort, read, decode), ms.
-    pub fetch_ms: f64,
-    /// The reads alone, ms.
-    pub read_ms: f64,
-}
-
-/// Means and totals of [`PageFetchFigures`] over a flight.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
-pub struct PageFetchSummary {
-    pub pages_mean: f64,
-    pub pages_candidate_mean: f64,
-    pub bytes_mean: f64,
-    pub bytes_read: u64,
-    pub seek_pages_mean: f64,
-    pub fetch_ms_mean: f64,
-    pub read_ms_mean: f64,
-}
-
-impl PageFetchSummary {
-    /// Over the frames that fetched pages; `None` when none did.
-    pub fn of_figures(f: &[PageFetchFigures]) -> Option<PageFetchSummary> {
-        if f.is_empty() {
-            return None;
-        }
-        let m = |g: fn(&PageFetchFigures) -> f64| mean(f.iter().map(g));
-        Some(PageFetchSummary {
-            pages_mean: m(|x| x.pages_requested as f64),
-            pages_candidate_mean: m(|x| x.pages_candidate as f64),
-            bytes_mean: m(|x| x.bytes_read as f64),
-            bytes_read: f.iter().map(|x| x.bytes_read).sum(),
-            seek_pages_mean: m(|x| x.seek_pages as f64),
-            fetch_ms_mean: m(|x| x.fetch_ms),
-            read_ms_mean: m(|x| x.read_ms),
-        })
-    }
-}
-
-/// What one [`MeshFrameSource::update`] did. The loops re-upload the triangles when
-/// `splits + collapses > 0` (and on the first frame): a source must count every change to its
-/// triangle set as a split or a collapse.
-#[derive(Clone, Copy, Debug, Default, Serialize)]
-pub struct MeshFrameStats {
+pub struct FrameStats {
+    /// The source's own work this frame (refinement, adaptation or fetch), ms; `null` when it had
+    /// nothing new (the refinement thread had no strip ready).
+    pub update_ms: Option<f64>,
+    /// Whether [`FrameSource::frame`] changed (the renderer uploads it again).
+    pub changed: bool,
+    /// Non-degenerate triangles to draw.
+    pub triangles: u64,
+    /// Strip vertices (terrains).
+    pub strip_len: u64,
+    /// Nodes split and collapsed (meta-node trees), pages gained and lost (disk pages).
     pub splits: u64,
     pub collapses: u64,
-    /// Meta-node (page) requests not found in memory.
+    /// Wanted splits or collapses put off because their block was not in memory (pool access).
     pub misses: u64,
-    /// Triangles after the update.
-    pub triangles: u64,
-    pub pages_read: u64,
+    /// Pool holders taken back off the free list with their block intact.
     pub second_chance_hits: u64,
-    /// Time the adaptation took, ms.
-    pub adapt_ms: f64,
+    /// Pages and bytes the backend's pager read from its file (read and pool access; what a map
+    /// reads shows as page faults).
+    pub pages_read: u64,
+    pub bytes_read: u64,
+    /// The disk-page fetch: pages the k-d query named, pages fetched after culling, the seek
+    /// distance of the reads in pages, and the time the reads took, ms.
+    pub pages_candidate: u64,
+    pub pages_requested: u64,
+    pub seek_pages: u64,
+    pub read_ms: f64,
+    /// Camera updates between this frame's camera and the one its geometry was made for.
+    pub lag_frames: u64,
 }
 
-impl MeshFrameStats {
-    /// Splits and collapses: the adaptation's work, and whether the triangles changed.
-    pub fn adapt(&self) -> u64 {
-        self.splits + self.collapses
-    }
-
-    /// 100 × misses / (adapt + misses), 0 when both are 0.
+impl FrameStats {
+    /// 100 × misses / (splits + collapses + misses), 0 when all are 0.
     pub fn miss_pct(&self) -> f64 {
-        pct(self.misses, self.adapt())
+        pct(self.misses, self.splits + self.collapses)
     }
 }
 
-pub fn pct(misses: u64, adapt: u64) -> f64 {
-    let all = misses + adapt;
+/// 100 × `misses` / (`done` + `misses`), 0 when both are 0.
+pub fn pct(misses: u64, done: u64) -> f64 {
+    let all = misses + done;
     if all == 0 {
         0.0
     } else {
@@ -108,10 +92,256 @@ pub fn pct(misses: u64, adapt: u64) -> f64 {
     }
 }
 
+/// Draws frames: the GPU side of a flight, outside this crate.
+pub trait Presenter {
+    /// Draws `frame` as `camera` sees it, uploading it first when `changed`, and waits for the
+    /// GPU; returns the bytes sent to the GPU.
+    fn present(&mut self, frame: Frame<'_>, changed: bool, camera: &Camera) -> Result<u64>;
+    /// Writes the last image drawn as a PNG.
+    fn save(&mut self, path: &Path) -> Result<()>;
+    /// The device, for reports.
+    fn adapter(&self) -> String;
+    /// GPU memory the presenter keeps for the source's data (a terrain's heights), bytes.
+    fn resident_bytes(&self) -> u64 {
+        0
+    }
+}
+
+/// Settings of a headless flight.
+#[derive(Clone, Debug)]
+pub struct FlightOptions {
+    /// Image size; every camera must have it.
+    pub width_px: u32,
+    pub height_px: u32,
+    /// Screen-space tolerance handed to the source, pixels.
+    pub tolerance_px: f64,
+    /// Start frames at least this many milliseconds apart (0: back to back). Without rendering
+    /// this stands in for a display's frame time, during which an I/O thread can prefetch; the
+    /// wait is not counted in `frame_ms`.
+    pub pace_ms: f64,
+    /// Write every frame as `frame_00000.png` here (with a presenter).
+    pub frames_out: Option<PathBuf>,
+    /// Write the report as JSON here.
+    pub stats_out: Option<PathBuf>,
+    pub progress: Progress,
+}
+
+impl FlightOptions {
+    pub fn new(width_px: u32, height_px: u32, tolerance_px: f64) -> FlightOptions {
+        FlightOptions {
+            width_px,
+            height_px,
+            tolerance_px,
+            pace_ms: 0.0,
+            frames_out: None,
+            stats_out: None,
+            progress: Progress::hidden(),
+        }
+    }
+}
+
+/// One frame of a flight: the source's figures and the loop's.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct FrameRecord {
+    pub frame: usize,
+    #[serde(flatten)]
+    pub stats: FrameStats,
+    pub miss_pct: f64,
+    /// Upload, draw and finish on the GPU (PNG writing excluded), ms; 0 without a presenter.
+    pub render_ms: f64,
+    /// Wall time of the whole frame (update, render, PNG), ms.
+    pub frame_ms: f64,
+    /// Bytes sent to the GPU this frame.
+    pub upload_bytes: u64,
+    /// The process's page faults while the frame's update ran: major (read from storage) and
+    /// minor (mapped from memory, readahead included).
+    pub major_faults: u64,
+    pub minor_faults: u64,
+}
+
+/// Mean, median, maximum and total of one figure over a flight's frames.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Summary {
+    pub mean: f64,
+    pub median: f64,
+    pub max: f64,
+    pub total: f64,
+}
+
+impl Summary {
+    /// Over `values` (empty: all zero).
+    pub fn of(values: impl IntoIterator<Item = f64>) -> Summary {
+        let mut v: Vec<f64> = values.into_iter().collect();
+        if v.is_empty() {
+            return Summary::default();
+        }
+        let total: f64 = v.iter().sum();
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        let median = if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) };
+        Summary { mean: total / n as f64, median, max: v[n - 1], total }
+    }
+}
+
+/// A whole flight's figures: the same keys for every backend.
+#[derive(Clone, Debug, Serialize)]
+pub struct FlightSummary {
+    pub frames: usize,
+    pub fps: f64,
+    pub wall_s: f64,
+    pub width: u32,
+    pub height: u32,
+    pub tolerance_px: f64,
+    /// What was flown ([`FrameSource::describe`]).
+    pub source: String,
+    /// The device that drew it, or why none did.
+    pub adapter: String,
+    /// GPU memory kept for the source's data, bytes.
+    pub resident_gpu_bytes: u64,
+    /// Over the flight: 100 × Σ misses / (Σ splits + Σ collapses + Σ misses).
+    pub miss_pct: f64,
+    /// Over the frames that produced something new.
+    pub update_ms: Summary,
+    pub render_ms: Summary,
+    pub frame_ms: Summary,
+    pub triangles: Summary,
+    pub strip_len: Summary,
+    pub upload_bytes: Summary,
+    pub splits: Summary,
+    pub collapses: Summary,
+    pub misses: Summary,
+    pub second_chance_hits: Summary,
+    pub pages_read: Summary,
+    pub bytes_read: Summary,
+    pub pages_candidate: Summary,
+    pub pages_requested: Summary,
+    pub seek_pages: Summary,
+    pub read_ms: Summary,
+    pub lag_frames: Summary,
+    pub major_faults: Summary,
+    pub minor_faults: Summary,
+}
+
+/// A flight: `{"frames": […], "summary": {…}}`.
+#[derive(Clone, Debug, Serialize)]
+pub struct FlightReport {
+    pub frames: Vec<FrameRecord>,
+    pub summary: FlightSummary,
+}
+
+impl FlightSummary {
+    fn of(frames: &[FrameRecord], wall_s: f64, options: &FlightOptions, source: String, adapter: String) -> Self {
+        let s = |f: fn(&FrameRecord) -> f64| Summary::of(frames.iter().map(f));
+        let total = |f: fn(&FrameRecord) -> u64| frames.iter().map(f).sum::<u64>();
+        FlightSummary {
+            frames: frames.len(),
+            fps: if wall_s > 0.0 { frames.len() as f64 / wall_s } else { 0.0 },
+            wall_s,
+            width: options.width_px,
+            height: options.height_px,
+            tolerance_px: options.tolerance_px,
+            source,
+            adapter,
+            resident_gpu_bytes: 0,
+            miss_pct: pct(total(|f| f.stats.misses), total(|f| f.stats.splits + f.stats.collapses)),
+            update_ms: Summary::of(frames.iter().filter_map(|f| f.stats.update_ms)),
+            render_ms: s(|f| f.render_ms),
+            frame_ms: s(|f| f.frame_ms),
+            triangles: s(|f| f.stats.triangles as f64),
+            strip_len: s(|f| f.stats.strip_len as f64),
+            upload_bytes: s(|f| f.upload_bytes as f64),
+            splits: s(|f| f.stats.splits as f64),
+            collapses: s(|f| f.stats.collapses as f64),
+            misses: s(|f| f.stats.misses as f64),
+            second_chance_hits: s(|f| f.stats.second_chance_hits as f64),
+            pages_read: s(|f| f.stats.pages_read as f64),
+            bytes_read: s(|f| f.stats.bytes_read as f64),
+            pages_candidate: s(|f| f.stats.pages_candidate as f64),
+            pages_requested: s(|f| f.stats.pages_requested as f64),
+            seek_pages: s(|f| f.stats.seek_pages as f64),
+            read_ms: s(|f| f.stats.read_ms),
+            lag_frames: s(|f| f.stats.lag_frames as f64),
+            major_faults: s(|f| f.major_faults as f64),
+            minor_faults: s(|f| f.minor_faults as f64),
+        }
+    }
+}
+
+/// Flies `source` along `cameras`, one frame each, drawing every frame with `presenter` when
+/// there is one (else the update alone is timed); writes the PNGs and the JSON report where
+/// `options` asks, and returns the report.
+pub fn fly<'p>(
+    source: &mut dyn FrameSource,
+    cameras: &[Camera],
+    mut presenter: Option<&mut (dyn Presenter + 'p)>,
+    options: &FlightOptions,
+) -> Result<FlightReport> {
+    if cameras.is_empty() {
+        return Err(Error::InvalidArgument("a flight needs at least one camera".into()));
+    }
+    let size = (options.width_px, options.height_px);
+    if let Some((k, c)) = cameras.iter().enumerate().find(|(_, c)| (c.width_px, c.height_px) != size) {
+        return Err(Error::InvalidArgument(format!(
+            "camera {k} is {} x {} pixels, the flight {} x {}",
+            c.width_px, c.height_px, size.0, size.1
+        )));
+    }
+    if let (Some(dir), Some(_)) = (&options.frames_out, &presenter) {
+        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    }
+    let bar = options.progress.bar("fly", cameras.len() as u64, "frames");
+    let mut frames = Vec::with_capacity(cameras.len());
+    let t_all = Instant::now();
+    let mut next_start = Instant::now();
+    for (k, camera) in cameras.iter().enumerate() {
+        crate::sys::cancel::check()?;
+        if let Some(wait) = next_start.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        next_start = Instant::now() + std::time::Duration::from_secs_f64(options.pace_ms.max(0.0) / 1e3);
+        let t0 = Instant::now();
+        let faults0 = crate::sys::mem::page_faults();
+        let stats = source.update(camera, options.tolerance_px)?;
+        let faults1 = crate::sys::mem::page_faults();
+        let t_render = Instant::now();
+        let mut upload_bytes = 0;
+        if let Some(p) = presenter.as_deref_mut() {
+            upload_bytes = p.present(source.frame(), stats.changed || k == 0, camera)?;
+        }
+        let render_ms = if presenter.is_some() { t_render.elapsed().as_secs_f64() * 1e3 } else { 0.0 };
+        if let (Some(p), Some(dir)) = (presenter.as_deref_mut(), &options.frames_out) {
+            p.save(&dir.join(format!("frame_{k:05}.png")))?;
+        }
+        frames.push(FrameRecord {
+            frame: k,
+            stats,
+            miss_pct: stats.miss_pct(),
+            render_ms,
+            frame_ms: t0.elapsed().as_secs_f64() * 1e3,
+            upload_bytes,
+            major_faults: faults1.0 - faults0.0,
+            minor_faults: faults1.1 - faults0.1,
+        });
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let adapter = presenter.as_ref().map_or_else(|| "none (update only)".to_string(), |p| p.adapter());
+    let mut summary = FlightSummary::of(&frames, t_all.elapsed().as_secs_f64(), options, source.describe(), adapter);
+    summary.resident_gpu_bytes = presenter.as_ref().map_or(0, |p| p.resident_bytes());
+    let report = FlightReport { frames, summary };
+    if let Some(out) = &options.stats_out {
+        let text = serde_json::to_string_pretty(&report)
+            .map_err(|e| Error::InvalidArgument(format!("cannot encode the flight report: {e}")))?;
+        crate::sys::atomic_file::write(out, |w| std::io::Write::write_all(w, text.as_bytes()))?;
+    }
+    Ok(report)
+}
+
 /// The full mesh, never simplified: every update keeps the same triangles.
 pub struct StaticMesh {
     triangles: Vec<[f32; 3]>,
     bounds: Bounds,
+    shown: bool,
 }
 
 impl StaticMesh {
@@ -147,30 +377,36 @@ impl StaticMesh {
                 bounds.max[k] = bounds.max[k].max(c as f64);
             }
         }
-        Ok(StaticMesh { triangles, bounds })
+        Ok(StaticMesh { triangles, bounds, shown: false })
+    }
+
+    /// The triangles, three world positions each.
+    pub fn triangles(&self) -> &[[f32; 3]] {
+        &self.triangles
     }
 }
 
-impl MeshFrameSource for StaticMesh {
-    fn update(&mut self, _camera: &Camera, _tolerance_px: f64) -> Result<MeshFrameStats> {
-        Ok(MeshFrameStats { triangles: self.triangles.len() as u64 / 3, ..Default::default() })
+impl FrameSource for StaticMesh {
+    fn update(&mut self, _camera: &Camera, _tolerance_px: f64) -> Result<FrameStats> {
+        let changed = !std::mem::replace(&mut self.shown, true);
+        Ok(FrameStats {
+            update_ms: Some(0.0),
+            changed,
+            triangles: self.triangles.len() as u64 / 3,
+            ..Default::default()
+        })
     }
 
-    fn triangles(&self) -> &[[f32; 3]] {
-        &self.triangles
+    fn frame(&self) -> Frame<'_> {
+        Frame::Triangles(&self.triangles)
     }
 
     fn bounds(&self) -> Bounds {
         self.bounds
     }
-}
 
-pub fn mean(v: impl Iterator<Item = f64>) -> f64 {
-    let (sum, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
-    if n == 0 {
-        0.0
-    } else {
-        sum / n as f64
+    fn describe(&self) -> String {
+        "whole mesh".into()
     }
 }
 
@@ -180,20 +416,50 @@ mod tests {
 
     #[test]
     fn miss_percentage_counts_misses_among_all_requests() {
-        let s = MeshFrameStats { splits: 6, collapses: 2, misses: 2, ..Default::default() };
-        assert_eq!(s.adapt(), 8);
+        let s = FrameStats { splits: 6, collapses: 2, misses: 2, ..Default::default() };
         assert_eq!(s.miss_pct(), 20.0);
-        assert_eq!(MeshFrameStats::default().miss_pct(), 0.0);
+        assert_eq!(FrameStats::default().miss_pct(), 0.0);
     }
 
     #[test]
-    fn a_static_mesh_reports_its_triangles_and_box() {
+    fn summaries_are_means_medians_maxima_and_totals() {
+        let s = Summary::of([3.0, 1.0, 2.0, 10.0]);
+        assert_eq!(s, Summary { mean: 4.0, median: 2.5, max: 10.0, total: 16.0 });
+        assert_eq!(Summary::of([5.0]).median, 5.0);
+        assert_eq!(Summary::of(std::iter::empty()), Summary::default());
+    }
+
+    #[test]
+    fn a_static_mesh_reports_its_triangles_and_box_and_changes_once() {
         let mut m = StaticMesh::from_triangles(vec![[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 3.0, -1.0]]).unwrap();
         assert_eq!(m.bounds(), Bounds { min: [0.0, 0.0, -1.0], max: [2.0, 3.0, 0.0] });
         let cam = Camera::new(glam::DVec3::Z * 5.0, glam::DVec3::ZERO, glam::DVec3::Y, 60.0, 8, 8).unwrap();
         let s = m.update(&cam, 1.0).unwrap();
-        assert_eq!((s.triangles, s.adapt()), (1, 0));
+        assert_eq!((s.triangles, s.changed), (1, true));
+        assert!(!m.update(&cam, 1.0).unwrap().changed);
         assert!(StaticMesh::from_triangles(vec![[0.0; 3]; 4]).is_err());
         assert!(StaticMesh::from_triangles(Vec::new()).is_err());
+    }
+
+    /// The loop over a source without a presenter: one record per camera with the same keys,
+    /// the report written where asked.
+    #[test]
+    fn the_loop_records_every_frame_and_writes_the_report() {
+        let mut m = StaticMesh::from_triangles(vec![[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 3.0, -1.0]]).unwrap();
+        let cam = Camera::new(glam::DVec3::Z * 5.0, glam::DVec3::ZERO, glam::DVec3::Y, 60.0, 8, 8).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let mut options = FlightOptions::new(8, 8, 1.0);
+        options.stats_out = Some(dir.path().join("s.json"));
+        let r = fly(&mut m, &[cam, cam, cam], None, &options).unwrap();
+        assert_eq!(r.frames.len(), 3);
+        assert_eq!(r.summary.triangles.total, 3.0);
+        assert_eq!(r.summary.source, "whole mesh");
+        let text = std::fs::read_to_string(dir.path().join("s.json")).unwrap();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["frames"].as_array().unwrap().len(), 3);
+        assert!(v["summary"]["update_ms"]["median"].is_number());
+        let wrong = Camera::new(glam::DVec3::Z * 5.0, glam::DVec3::ZERO, glam::DVec3::Y, 60.0, 9, 8).unwrap();
+        assert!(fly(&mut m, &[cam, wrong], None, &options).is_err());
+        assert!(fly(&mut m, &[], None, &options).is_err());
     }
 }

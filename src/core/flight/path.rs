@@ -650,6 +650,76 @@ impl FlightPath {
     }
 }
 
+/// What a path is made over or around: a terrain file, or a mesh's bounding box with its up axis
+/// (a mesh file, a meta-node file or a page file).
+pub enum PathSubject {
+    Terrain(TerrainFile),
+    Box(Bounds, UpAxis),
+}
+
+impl PathSubject {
+    /// Opens `path`: a relief terrain file by its magic; a meta-node or page file by theirs (their
+    /// boxes); anything else is read as a mesh. `up` is a mesh's up axis (default: guessed from
+    /// its box, [`UpAxis::guess`]); a terrain's is z.
+    pub fn open(path: &Path, up: Option<UpAxis>) -> Result<PathSubject> {
+        use crate::format::{sniff, FileKind};
+        let guess = |b: &Bounds| up.unwrap_or_else(|| UpAxis::guess(b.extent()));
+        Ok(match sniff(path)? {
+            Some(FileKind::Terrain) => {
+                if up.is_some_and(|u| u != UpAxis::Z) {
+                    return Err(Error::InvalidArgument(format!("{}: a terrain's up axis is z", path.display())));
+                }
+                PathSubject::Terrain(TerrainFile::open(path)?)
+            }
+            Some(FileKind::Pages) => {
+                let b = crate::format::pages::PageFile::open(path)?.header().bounds;
+                PathSubject::Box(b, guess(&b))
+            }
+            Some(FileKind::MetaNode) => {
+                let b = crate::format::metanode::MetaNodeFile::open(path)?.header().bounds;
+                PathSubject::Box(b, guess(&b))
+            }
+            Some(FileKind::Vdt) | None => {
+                let mesh = crate::mesh::read_mesh(path)?;
+                let b = mesh.bounds().ok_or_else(|| Error::bad_mesh(path, "no vertices"))?;
+                PathSubject::Box(b, guess(&b))
+            }
+        })
+    }
+
+    /// The up axis paths use.
+    pub fn up(&self) -> UpAxis {
+        match self {
+            PathSubject::Terrain(_) => UpAxis::Z,
+            PathSubject::Box(_, up) => *up,
+        }
+    }
+
+    /// A low straight fly-over ([`flyover`], [`flyover_box`]).
+    pub fn flyover(&self, opts: &FlyoverOptions) -> Result<FlightPath> {
+        match self {
+            PathSubject::Terrain(t) => flyover(t, opts),
+            PathSubject::Box(b, up) => flyover_box(b, *up, opts),
+        }
+    }
+
+    /// A circle around the centre ([`orbit`], [`orbit_box`]).
+    pub fn orbit(&self, opts: &OrbitOptions) -> Result<FlightPath> {
+        match self {
+            PathSubject::Terrain(t) => orbit(t, opts),
+            PathSubject::Box(b, up) => orbit_box(b, *up, opts),
+        }
+    }
+
+    /// The path's summary: clearance above the terrain, or distance to the box.
+    pub fn summary(&self, path: &FlightPath) -> Result<PathSummary> {
+        match self {
+            PathSubject::Terrain(t) => path.summary(t),
+            PathSubject::Box(b, _) => Ok(path.summary_box(b)),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,6 +1,6 @@
-//! Flying: refinement feeding the renderer, on one thread (synchronous, for benchmarks and
-//! headless output) or on its own thread through a mailbox, so the render thread draws the newest
-//! finished strip and never waits for refinement.
+//! A terrain as a [`FrameSource`]: refinement feeding the renderer, on one thread (synchronous,
+//! for benchmarks and headless output) or on its own thread through a mailbox, so the render
+//! thread draws the newest finished strip and never waits for refinement.
 //!
 //! The mailbox holds one value: a newer one replaces an unread older one (latest wins, never a
 //! queue), and the replaced strip goes back to the refinement thread for reuse, so steady flight
@@ -10,9 +10,12 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::Instant;
 
+use super::frame::{Frame, FrameSource, FrameStats};
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::format::terrain::TerrainFile;
+use crate::mesh::Bounds;
+use crate::pager::ReadStats;
 use crate::refine::{RefineCounters, RefineOptions, Refiner, Strip};
 use crate::sys::mem;
 
@@ -173,17 +176,140 @@ impl Drop for RefineThread {
 }
 
 /// Where strips come from: the calling thread, or the refinement thread.
-/// The median of `v` (mean of the middle two for an even count), 0 when empty.
-pub fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
+/// Where strips are refined.
+enum Mode {
+    /// On the calling thread, in [`FrameSource::update`].
+    Sync(Refiner),
+    /// On the refinement thread; `update` asks for the newest camera and takes the newest strip.
+    Thread { thread: RefineThread, last_request: Option<(Camera, RefineOptions)>, taken: bool },
+}
+
+/// A terrain flown frame by frame: its refinement as a [`FrameSource`].
+pub struct TerrainSource {
+    terrain: Arc<TerrainFile>,
+    options: RefineOptions,
+    mode: Mode,
+    /// The strip [`FrameSource::frame`] hands out.
+    strip: Strip,
+    /// The request the drawn strip was refined for.
+    strip_seq: u64,
+    seq: u64,
+    reads: ReadStats,
+}
+
+impl TerrainSource {
+    /// Refines `terrain` with `options` (each update's tolerance replaces theirs) on `threads`
+    /// threads: on the calling thread, or on a thread of its own with `refine_thread`.
+    pub fn new(
+        terrain: Arc<TerrainFile>,
+        options: RefineOptions,
+        threads: usize,
+        refine_thread: bool,
+    ) -> Result<TerrainSource> {
+        let mode = if refine_thread {
+            Mode::Thread { thread: RefineThread::spawn(terrain.clone(), threads)?, last_request: None, taken: false }
+        } else {
+            Mode::Sync(Refiner::new(threads)?)
+        };
+        let reads = terrain.pager().reads();
+        Ok(TerrainSource { terrain, options, mode, strip: Strip::new(), strip_seq: 0, seq: 0, reads })
     }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
+
+    pub fn terrain(&self) -> &Arc<TerrainFile> {
+        &self.terrain
+    }
+
+    pub fn options(&self) -> RefineOptions {
+        self.options
+    }
+
+    /// Culling, metric and geomorphing for the next updates.
+    pub fn set_options(&mut self, options: RefineOptions) {
+        self.options = options;
+    }
+
+    /// The strip drawn now.
+    pub fn strip(&self) -> &Strip {
+        &self.strip
+    }
+
+    /// Whether refinement runs on its own thread.
+    pub fn threaded(&self) -> bool {
+        matches!(self.mode, Mode::Thread { .. })
+    }
+}
+
+impl FrameSource for TerrainSource {
+    fn update(&mut self, camera: &Camera, tolerance_px: f64) -> Result<FrameStats> {
+        self.seq += 1;
+        let options = RefineOptions { tolerance_px, ..self.options };
+        let job = RefineJob { camera: *camera, options, seq: self.seq };
+        let refined = match &mut self.mode {
+            Mode::Sync(refiner) => Some(refine_once(refiner, &self.terrain, job, std::mem::take(&mut self.strip))),
+            Mode::Thread { thread, last_request, taken } => {
+                if *last_request != Some((job.camera, job.options)) {
+                    thread.request(job);
+                    *last_request = Some((job.camera, job.options));
+                }
+                // The first frame waits for its strip; later ones draw the newest finished one.
+                let got = if *taken { thread.take() } else { thread.wait() };
+                if let Some(r) = got {
+                    *taken = true;
+                    thread.recycle(std::mem::replace(&mut self.strip, Strip::new()));
+                    Some(r)
+                } else {
+                    None
+                }
+            }
+        };
+        let reads = self.terrain.pager().reads();
+        let (pages_read, bytes_read) = (reads.pages - self.reads.pages, reads.bytes - self.reads.bytes);
+        self.reads = reads;
+        let Some(r) = refined else {
+            return Ok(FrameStats {
+                triangles: self.strip.triangle_counts().0,
+                strip_len: self.strip.len() as u64,
+                pages_read,
+                bytes_read,
+                lag_frames: self.seq.saturating_sub(self.strip_seq),
+                ..FrameStats::default()
+            });
+        };
+        if let Some(e) = r.error {
+            return Err(e);
+        }
+        self.strip = r.strip;
+        self.strip_seq = r.job.seq;
+        Ok(FrameStats {
+            update_ms: Some(r.refine_ms),
+            changed: true,
+            triangles: self.strip.triangle_counts().0,
+            strip_len: self.strip.len() as u64,
+            pages_read,
+            bytes_read,
+            lag_frames: self.seq.saturating_sub(r.job.seq),
+            ..FrameStats::default()
+        })
+    }
+
+    fn frame(&self) -> Frame<'_> {
+        Frame::Strip(&self.strip)
+    }
+
+    fn bounds(&self) -> Bounds {
+        let h = self.terrain.header();
+        let [ex, ey] = h.extent_m();
+        Bounds { min: [0.0, 0.0, h.z_min], max: [ex, ey, h.z_max] }
+    }
+
+    fn describe(&self) -> String {
+        let name = self.terrain.path().file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+        format!(
+            "terrain {name}, {} layout, {} access, refinement {}",
+            self.terrain.header().layout.name(),
+            self.terrain.pager().access().name(),
+            if self.threaded() { "on its own thread" } else { "synchronous" }
+        )
     }
 }
 

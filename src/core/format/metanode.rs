@@ -40,6 +40,9 @@ pub const VERSION: u32 = 1;
 /// The header region: the container's 256-byte block, then zeros up to the meta-node table.
 pub const HEADER_BYTES: u64 = 4096;
 pub const BLOCK_HEADER_BYTES: usize = 16;
+/// Page sizes a meta-node file may have (powers of two).
+pub const MIN_PAGE_BYTES: u32 = 512;
+pub const MAX_PAGE_BYTES: u32 = 1 << 20;
 
 /// One node in a block (56 bytes). References to other nodes are (meta-node, local index) pairs;
 /// the ids are the VDT ids, kept for the implicit-dependency tests.
@@ -217,8 +220,8 @@ impl Format for MetaHeader {
             data_bytes: b.u64(104),
             bounds: Bounds { min: b.f64x3(112), max: b.f64x3(136) },
         };
-        if !h.page_bytes.is_power_of_two() || h.page_bytes < 512 {
-            return Err(bad(format!("page size {} is not a power of two ≥ 512", h.page_bytes)));
+        if !h.page_bytes.is_power_of_two() || !(MIN_PAGE_BYTES..=MAX_PAGE_BYTES).contains(&h.page_bytes) {
+            return Err(bad(format!("page size {} is not a power of two from 512 bytes to 1 MiB", h.page_bytes)));
         }
         if h.metanodes == 0
             || h.root_metanodes == 0

@@ -21,7 +21,7 @@ fn posts(x0: u32, x1: u32, step: u32) -> Vec<u32> {
 /// from +z) triangles per cell. Vertices are row-major, x fastest.
 pub fn terrain_mesh(file: &TerrainFile, step: u32) -> Result<Mesh> {
     if step == 0 {
-        return Err(Error::InvalidArgument("--step must be at least 1".into()));
+        return Err(Error::InvalidArgument("the step must be at least 1 post".into()));
     }
     let h = file.header();
     let [x0, y0, x1, y1] = h.valid_window;
@@ -33,7 +33,7 @@ pub fn terrain_mesh(file: &TerrainFile, step: u32) -> Result<Mesh> {
     if (w as u64) * (ht as u64) > u32::MAX as u64 {
         return Err(Error::bad_mesh(
             file.path(),
-            format!("{w} x {ht} posts exceed 32-bit indices; use a larger --step"),
+            format!("{w} x {ht} posts exceed 32-bit indices; take fewer (a larger step)"),
         ));
     }
     let [sx, sy] = h.spacing_m;

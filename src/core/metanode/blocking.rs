@@ -19,7 +19,8 @@ use serde::Serialize;
 use super::{VdtNode, VdtTriangle, NONE};
 use crate::error::{Error, Result};
 use crate::format::metanode::{
-    MetaHeader, MnNode, MntEntry, BLOCK_HEADER_BYTES, COORD_BYTES, HEADER_BYTES, NODE_BYTES, TRI_BYTES,
+    MetaHeader, MnNode, MntEntry, BLOCK_HEADER_BYTES, COORD_BYTES, HEADER_BYTES, MAX_PAGE_BYTES, MIN_PAGE_BYTES,
+    NODE_BYTES, TRI_BYTES,
 };
 use crate::format::Format;
 use crate::mesh::Bounds;
@@ -148,13 +149,20 @@ pub fn write_metanode_file(forest: &Forest<'_>, options: BlockingOptions, out: &
     })
 }
 
+impl BlockingOptions {
+    /// Checks the levels (1 to 16) and the page size (a power of two from 512 bytes to 1 MiB).
+    pub fn validate(&self) -> Result<()> {
+        validate_options(*self)
+    }
+}
+
 fn validate_options(o: BlockingOptions) -> Result<()> {
     if !(1..=16).contains(&o.levels_per_node) {
         return Err(Error::InvalidArgument(format!("levels per meta-node must be 1 to 16, got {}", o.levels_per_node)));
     }
-    if !o.page_bytes.is_power_of_two() || o.page_bytes < 512 {
+    if !o.page_bytes.is_power_of_two() || !(MIN_PAGE_BYTES..=MAX_PAGE_BYTES).contains(&o.page_bytes) {
         return Err(Error::InvalidArgument(format!(
-            "page size must be a power of two of at least 512 bytes, got {}",
+            "page size must be a power of two from 512 bytes to 1 MiB, got {}",
             o.page_bytes
         )));
     }

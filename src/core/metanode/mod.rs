@@ -86,3 +86,53 @@ pub mod build;
 pub mod simplify;
 
 pub use crate::format::vdt::{VdtFile, VdtHeader, VdtMetric};
+
+/// The whole `relief mesh build` pipeline in one call: the VDT forest of `mesh` out of core
+/// ([`build::build_vdt_from_mesh`]), then blocked into the meta-node file `output`
+/// ([`blocking::write_metanode_file`]). The forest goes to `vdt` when given (kept), else to a
+/// scratch directory beside `output` that is removed whatever happens.
+pub fn build_tree(
+    mesh: crate::mesh::Mesh,
+    output: &std::path::Path,
+    vdt: Option<&std::path::Path>,
+    build: &build::BuildOptions,
+    blocking_options: blocking::BlockingOptions,
+) -> crate::Result<TreeReport> {
+    use crate::error::Error;
+    let dir = match output.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => std::path::PathBuf::from("."),
+    };
+    let scratch = tempfile::Builder::new().prefix(".relief-vdt.").tempdir_in(&dir).map_err(|e| Error::Scratch {
+        path: dir.clone(),
+        problem: format!("cannot create a scratch directory: {e}"),
+    })?;
+    let vdt_path = vdt.map_or_else(|| scratch.path().join("forest.vdt"), |p| p.to_path_buf());
+    let vdt_report = build::build_vdt_from_mesh(mesh, &vdt_path, build)?;
+    let forest_file = VdtFile::open(&vdt_path)?;
+    let forest = blocking::Forest {
+        nodes: forest_file.nodes(),
+        triangles: forest_file.triangles(),
+        base_triangles: forest_file.base_triangles().len(),
+        leaves: forest_file.leaves() as u32,
+        metric: forest_file.metric() as u32,
+        bounds: forest_file.bounds(),
+    };
+    let metanode = blocking::write_metanode_file(&forest, blocking_options, output)?;
+    Ok(TreeReport {
+        vdt: vdt_report,
+        metanode,
+        levels_per_node: blocking_options.levels_per_node,
+        page_bytes: blocking_options.page_bytes as u64,
+    })
+}
+
+/// What [`build_tree`] did: the forest's build and the meta-node file's blocking.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct TreeReport {
+    #[serde(flatten)]
+    pub vdt: build::BuildReport,
+    pub metanode: blocking::MetaNodeReport,
+    pub levels_per_node: u32,
+    pub page_bytes: u64,
+}

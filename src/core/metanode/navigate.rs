@@ -28,12 +28,13 @@ use glam::DVec3;
 use serde::Serialize;
 
 use super::NONE;
-use crate::camera::{Camera, PLANES};
+use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::format::metanode::{parse_block, BlockView, MetaNodeFile, MnNode, MntEntry};
 use crate::format::{self, FileKind};
+use crate::lod::Lod;
 use crate::pager::pool::{Direction, Urgent};
-use crate::pager::{NoTrace, PageObserver};
+use crate::refine::metric::Isotropic;
 
 /// Where meta-nodes come from. `with_block` gives `None` when the block is not in memory (a
 /// miss for the caller); the counting calls are the buffer pool's protocol and no-ops elsewhere.
@@ -159,6 +160,8 @@ pub struct Navigator<S: MetaStore> {
     options: NavOptions,
     foldovers: u64,
     worklist: Vec<u32>,
+    /// The largest coordinate of the mesh's box, for the rounding slack.
+    scale: f64,
 }
 
 impl<S: MetaStore> Navigator<S> {
@@ -181,6 +184,10 @@ impl<S: MetaStore> Navigator<S> {
             options,
             foldovers: 0,
             worklist: Vec::new(),
+            scale: {
+                let b = file.header().bounds;
+                b.min.iter().chain(&b.max).map(|c| c.abs()).filter(|c| c.is_finite()).fold(1.0, f64::max)
+            },
         };
         for m in 0..roots {
             // Load and pin each root meta-node before the next load can recycle a holder.
@@ -260,8 +267,8 @@ impl<S: MetaStore> Navigator<S> {
     /// new nodes are tested in turn, so with all data in memory one call reaches the cut the
     /// view asks for.
     pub fn update(&mut self, camera: &Camera, tolerance_px: f64) -> Result<AdaptStats> {
-        let view =
-            View { eye: camera.eye_in_world, kappa: camera.kappa(tolerance_px), planes: camera.frustum_normals() };
+        let scale = self.scale.max(camera.eye_in_world.abs().max_element());
+        let view = View { lod: Lod::new(camera, tolerance_px, Isotropic), margin: crate::lod::margin_for_scale(scale) };
         let mut stats = AdaptStats::default();
         self.forced.clear();
         self.missed.clear();
@@ -270,7 +277,7 @@ impl<S: MetaStore> Navigator<S> {
         while let Some(key) = self.worklist.pop() {
             let Some(a) = self.active.get(&key) else { continue };
             let node = a.node;
-            if !node.is_leaf() && view.wants(a.position, node.switch, node.radius) {
+            if !node.is_leaf() && view.wants(node.id, a.position, node.switch, node.radius) {
                 match self.try_split(key)? {
                     Outcome::Done => {
                         stats.splits += 1;
@@ -292,7 +299,8 @@ impl<S: MetaStore> Navigator<S> {
             } else if !node.is_root() {
                 let Some((first, second)) = self.sibling_pair(key) else { continue };
                 let position = self.active[&first].position;
-                if self.forced.contains(&node.parent_id) || view.wants(position, node.parent_switch, node.parent_radius)
+                if self.forced.contains(&node.parent_id)
+                    || view.wants(node.parent_id, position, node.parent_switch, node.parent_radius)
                 {
                     continue;
                 }
@@ -736,23 +744,19 @@ enum Outcome {
 /// How far a forced split may recurse through blocking neighbours in one go.
 const FORCE_DEPTH: u32 = 32;
 
+/// One frame's test: the shared one ([`crate::lod`]), with a slack per node id (a parent's id
+/// exceeds its children's, so the parent always gets more) against rounding.
 struct View {
-    eye: DVec3,
-    kappa: f64,
-    planes: [DVec3; PLANES],
+    lod: Lod<Isotropic>,
+    margin: f64,
 }
 
 impl View {
-    /// Whether a node at `position` with `switch` and `radius` should be split.
+    /// Whether node `id` at `position` with `switch` and `radius` should be split.
     #[inline]
-    fn wants(&self, position: [f32; 3], switch: f32, radius: f32) -> bool {
-        let d = DVec3::new(position[0] as f64, position[1] as f64, position[2] as f64) - self.eye;
-        let r = radius as f64;
-        if self.planes.iter().any(|n| n.dot(d) < -r) {
-            return false;
-        }
-        let reach = self.kappa * switch as f64 + r;
-        reach * reach > d.length_squared()
+    fn wants(&self, id: u32, position: [f32; 3], switch: f32, radius: f32) -> bool {
+        let p = DVec3::new(position[0] as f64, position[1] as f64, position[2] as f64);
+        self.lod.wants(p, switch as f64, radius as f64 + self.margin * id as f64)
     }
 }
 
@@ -768,13 +772,12 @@ fn flipped(before: &[[f32; 3]; 3], after: &[[f32; 3]; 3]) -> bool {
 
 /// The meta-node store: blocks through the file's [`crate::pager::Pager`], whatever its access.
 /// With the map or positioned reads every block is there when asked for (the OS pages it in,
-/// the navigation waits: the paper's "Virt"); every read is reported to the observer. With the
-/// buffer pool ("Ext") a block no holder has is a miss, and the store speaks the pool's
-/// protocol: usage counts for the blocks of active nodes, references for prefetch, urgent
-/// prefetch for missed switches.
-pub struct PagedStore<'a, O: PageObserver = NoTrace> {
+/// the navigation waits: the paper's "Virt"). With the buffer pool ("Ext") a block no holder has
+/// is a miss, and the store speaks the pool's protocol: usage counts for the blocks of active
+/// nodes, references for prefetch, urgent prefetch for missed switches. The pager's observer
+/// sees what is read either way.
+pub struct PagedStore<'a> {
     file: &'a MetaNodeFile,
-    observer: O,
     /// Blocks asked for urgently, held by a reference until a node in them is activated (or for
     /// [`URGENT_HOLD_FRAMES`]): an urgently loaded block nobody references yet would sit first on
     /// the free list, and the next load would take its holder before the navigator gets to it.
@@ -786,48 +789,24 @@ pub struct PagedStore<'a, O: PageObserver = NoTrace> {
 /// How long an urgent load is held for the switch that asked for it.
 const URGENT_HOLD_FRAMES: u64 = 4;
 
-impl<'a> PagedStore<'a, NoTrace> {
-    pub fn new(file: &'a MetaNodeFile) -> PagedStore<'a, NoTrace> {
-        PagedStore::observed(file, NoTrace)
-    }
-}
-
-impl<'a, O: PageObserver> PagedStore<'a, O> {
-    /// A store whose reads (map and read access) are reported to `observer`.
-    pub fn observed(file: &'a MetaNodeFile, observer: O) -> PagedStore<'a, O> {
-        PagedStore {
-            file,
-            observer,
-            urgent: HashMap::new(),
-            frame: 0,
-            faults_at_start: crate::sys::mem::page_faults().0,
-        }
+impl<'a> PagedStore<'a> {
+    pub fn new(file: &'a MetaNodeFile) -> PagedStore<'a> {
+        PagedStore { file, urgent: HashMap::new(), frame: 0, faults_at_start: crate::sys::mem::page_faults().0 }
     }
 
     pub fn file(&self) -> &'a MetaNodeFile {
         self.file
     }
-
-    pub fn observer(&self) -> &O {
-        &self.observer
-    }
 }
 
-impl<O: PageObserver> MetaStore for PagedStore<'_, O> {
+impl MetaStore for PagedStore<'_> {
     fn with_block<R>(&mut self, meta: u32, f: impl FnOnce(BlockView<'_>) -> R) -> Result<Option<R>> {
         let block = match self.file.pager().pool() {
             Some(pool) => match pool.get(meta) {
                 Some(b) => crate::pager::Block::Pooled(b),
                 None => return Ok(None),
             },
-            None => {
-                let block = self.file.block(meta)?;
-                if O::TRACES {
-                    let e = self.file.pager().extent(meta)?;
-                    self.observer.read(e.offset, e.bytes);
-                }
-                block
-            }
+            None => self.file.block(meta)?,
         };
         let view = parse_block(self.file, meta, &block)?;
         Ok(Some(f(view)))

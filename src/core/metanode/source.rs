@@ -1,54 +1,75 @@
-//! The navigator as a [`MeshFrameSource`]: what `relief mesh fly` renders.
+//! The navigator as a [`FrameSource`]: what `relief mesh fly` draws.
 
 use std::time::Instant;
 
-use super::navigate::{MetaStore, Navigator};
+use super::navigate::{MetaStore, Navigator, PagedStore};
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::flight::frame::{MeshFrameSource, MeshFrameStats};
+use crate::flight::frame::{Frame, FrameSource, FrameStats};
+use crate::format::metanode::MetaNodeFile;
 use crate::mesh::Bounds;
+use crate::pager::{Access, ReadStats};
 
-/// A [`Navigator`] with the counters `relief mesh fly` reports per frame.
-pub struct NavSource<S: MetaStore> {
-    pub navigator: Navigator<S>,
-    bounds: Bounds,
-    pages_read: u64,
+/// A [`Navigator`] over a meta-node file's pager, flown frame by frame.
+pub struct NavSource<'a> {
+    pub navigator: Navigator<PagedStore<'a>>,
+    file: &'a MetaNodeFile,
+    reads: ReadStats,
     second_chance_hits: u64,
+    shown: bool,
 }
 
-impl<S: MetaStore> NavSource<S> {
-    pub fn new(navigator: Navigator<S>, bounds: Bounds) -> NavSource<S> {
-        let pages_read = navigator.store().pages_read();
+impl<'a> NavSource<'a> {
+    pub fn new(navigator: Navigator<PagedStore<'a>>) -> NavSource<'a> {
+        let file = navigator.store().file();
         let second_chance_hits = navigator.store().second_chance_hits();
-        NavSource { navigator, bounds, pages_read, second_chance_hits }
+        NavSource { reads: file.pager().reads(), file, navigator, second_chance_hits, shown: false }
     }
 }
 
-impl<S: MetaStore> MeshFrameSource for NavSource<S> {
-    fn update(&mut self, camera: &Camera, tolerance_px: f64) -> Result<MeshFrameStats> {
+impl FrameSource for NavSource<'_> {
+    fn update(&mut self, camera: &Camera, tolerance_px: f64) -> Result<FrameStats> {
         let started = Instant::now();
         let s = self.navigator.update(camera, tolerance_px)?;
-        let adapt_ms = started.elapsed().as_secs_f64() * 1e3;
-        let (pages, second) = (self.navigator.store().pages_read(), self.navigator.store().second_chance_hits());
-        let stats = MeshFrameStats {
+        let update_ms = started.elapsed().as_secs_f64() * 1e3;
+        let reads = self.file.pager().reads();
+        let second = self.navigator.store().second_chance_hits();
+        let stats = FrameStats {
+            update_ms: Some(update_ms),
+            changed: s.splits + s.collapses > 0 || !self.shown,
+            triangles: s.triangles,
             splits: s.splits,
             collapses: s.collapses,
             misses: s.misses,
-            triangles: s.triangles,
-            pages_read: pages - self.pages_read,
             second_chance_hits: second - self.second_chance_hits,
-            adapt_ms,
+            pages_read: reads.pages - self.reads.pages,
+            bytes_read: reads.bytes - self.reads.bytes,
+            ..FrameStats::default()
         };
-        self.pages_read = pages;
+        self.shown = true;
+        self.reads = reads;
         self.second_chance_hits = second;
         Ok(stats)
     }
 
-    fn triangles(&self) -> &[[f32; 3]] {
-        self.navigator.triangles()
+    fn frame(&self) -> Frame<'_> {
+        Frame::Triangles(self.navigator.triangles())
     }
 
     fn bounds(&self) -> Bounds {
-        self.bounds
+        self.file.header().bounds
+    }
+
+    fn describe(&self) -> String {
+        let pager = self.file.pager();
+        match (pager.access(), pager.pool()) {
+            (Access::Pool { .. }, Some(pool)) => format!(
+                "meta-node trees, pool access (ext), {} holders of {} B",
+                pool.holders(),
+                self.file.header().holder_bytes
+            ),
+            (Access::Map, _) => "meta-node trees, map access (virt)".into(),
+            (access, _) => format!("meta-node trees, {} access", access.name()),
+        }
     }
 }

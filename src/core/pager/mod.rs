@@ -11,10 +11,13 @@
 //!   block-sized place holders as a memory budget allows, with an I/O thread, speculative and
 //!   urgent prefetch. The meta-node paper's "Ext" column.
 //!
-//! Bytes come from a [`source::Source`] (a map or a file read with `pread`). What a backend reads
-//! is reported to a [`observer::PageObserver`], which counts page faults by a model
-//! ([`observer::LruTrace`]) or from the OS ([`observer::OsFaults`]); [`observer::NoTrace`]
-//! compiles to nothing, so the plain path pays nothing for the experiments.
+//! Bytes come from a [`source::Source`] (a map or a file read with `pread`). An
+//! [`observer::PageObserver`] attached to a pager ([`Pager::observe`]) sees every byte range the
+//! pager takes from the file: each block borrowed from the map, each positioned read, each load
+//! of the pool's. It counts page faults by a model ([`observer::LruTrace`]) or from the OS
+//! ([`observer::OsFaults`]). Without one nothing is reported; the terrain's per-record hot path
+//! is generic over the observer ([`crate::refine::MappedRecords`]), so the plain path pays
+//! nothing for the experiments.
 
 pub mod lru;
 pub mod observer;
@@ -24,7 +27,7 @@ pub mod source;
 
 use std::ops::Deref;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use serde::Serialize;
 
@@ -244,11 +247,21 @@ impl ReadCounter {
     }
 }
 
+/// The observer a pager (and its pool's loader) reports to, set at most once.
+type ObserverSlot = Arc<OnceLock<Arc<dyn PageObserver>>>;
+
+fn report(slot: &ObserverSlot, e: Extent) {
+    if let Some(o) = slot.get() {
+        o.read(e.offset, e.bytes);
+    }
+}
+
 /// Reads a table's blocks from a source, for the buffer pool.
 pub struct SourceLoader {
     source: Arc<dyn Source>,
     table: Arc<dyn BlockTable>,
     reads: ReadCounter,
+    observer: ObserverSlot,
 }
 
 impl SourceLoader {
@@ -257,6 +270,7 @@ impl SourceLoader {
         buf.resize(e.bytes as usize);
         self.source.read_at(e.offset, buf.bytes_mut())?;
         self.reads.add(&*self.table, 1, e.bytes);
+        report(&self.observer, e);
         Ok(())
     }
 }
@@ -292,12 +306,14 @@ pub struct Pager {
     table: Arc<dyn BlockTable>,
     access: Access,
     mode: Mode,
+    observer: ObserverSlot,
 }
 
 impl Pager {
     /// A pager over `source`'s blocks as `table` numbers them. `Map` needs a mapped source; a
     /// pool gets as many place holders as `bytes` allows for the table's largest block.
     pub fn new(source: Arc<dyn Source>, table: Arc<dyn BlockTable>, access: Access) -> Result<Pager> {
+        let observer = ObserverSlot::default();
         let mode = match access {
             Access::Map => {
                 if source.mapped().is_none() {
@@ -315,11 +331,26 @@ impl Pager {
                     source: Arc::clone(&source),
                     table: Arc::clone(&table),
                     reads: ReadCounter::default(),
+                    observer: Arc::clone(&observer),
                 };
                 Mode::Pool(BufferPool::new(loader, holders)?)
             }
         };
-        Ok(Pager { source, table, access, mode })
+        Ok(Pager { source, table, access, mode, observer })
+    }
+
+    /// Reports every byte range this pager takes from the file from now on to `observer`: blocks
+    /// borrowed from the map, positioned reads, the pool's loads (not its hits: those cost no
+    /// I/O). One observer per pager; a second is refused.
+    pub fn observe(&self, observer: Arc<dyn PageObserver>) -> Result<()> {
+        self.observer.set(observer).map_err(|_| {
+            Error::InvalidArgument(format!("{}: the pager already has an observer", self.source.path().display()))
+        })
+    }
+
+    /// The attached observer, if any.
+    pub fn observer(&self) -> Option<&dyn PageObserver> {
+        self.observer.get().map(|o| &**o)
     }
 
     pub fn access(&self) -> Access {
@@ -363,6 +394,7 @@ impl Pager {
             Mode::Map => {
                 let e = self.extent(id)?;
                 let map = self.source.mapped().expect("map access has a mapped source");
+                report(&self.observer, e);
                 Ok(Block::Mapped(&map[e.offset as usize..(e.offset + e.bytes) as usize]))
             }
             Mode::Read(reads) => {
@@ -371,6 +403,7 @@ impl Pager {
                 buf.resize(e.bytes as usize);
                 self.source.read_at(e.offset, buf.bytes_mut())?;
                 reads.add(&*self.table, 1, e.bytes);
+                report(&self.observer, e);
                 Ok(Block::Read(buf))
             }
             Mode::Pool(pool) => Ok(Block::Pooled(pool.get_or_load(id)?)),
@@ -415,6 +448,7 @@ impl Pager {
                 reads.add(&*self.table, count as u64, end - start.offset);
                 for id in first..first + count {
                     let e = self.extent(id)?;
+                    report(&self.observer, e);
                     let at = (e.offset - start.offset) as usize;
                     f(id, &buf.bytes()[at..at + e.bytes as usize])?;
                 }
@@ -502,6 +536,33 @@ mod tests {
                 // Blocks 0, 9, 3 read once each; the run reads 2, 4, 5, 6 (3 is held).
                 Access::Pool { .. } => assert_eq!(pager.reads().blocks, 3 + 4),
             }
+        }
+    }
+
+    #[test]
+    fn the_observer_sees_what_each_access_takes_from_the_file() {
+        let (_dir, path, _) = file_of(16 * 1024);
+        let table: Arc<dyn BlockTable> =
+            Arc::new(FixedBlocks { first: 0, block_bytes: 1024, end: 16 * 1024, page_bytes: 1024 });
+        for access in [Access::Map, Access::Read, Access::Pool { bytes: 8 * 1024 }] {
+            let pager = Pager::new(source::open(&path, access.source_kind()).unwrap(), table.clone(), access).unwrap();
+            let trace = Arc::new(LruTrace::new(LruCache::with_pages(64), PageGeometry::new(1024).unwrap()));
+            pager.observe(trace.clone()).unwrap();
+            assert!(pager.observe(trace.clone()).is_err(), "one observer per pager");
+            for id in [1u32, 2, 1, 1, 5] {
+                pager.block(id).unwrap();
+            }
+            let mut buf = BlockBuf::default();
+            pager.for_run(6, 3, &mut buf, |_, _| Ok(())).unwrap();
+            // Map and read see every access (a repeat of the page just read is not a touch);
+            // the pool only its loads (1, 2 and 5 once each).
+            let stats = trace.stats();
+            let touches = stats.hits + stats.misses;
+            match access {
+                Access::Map | Access::Read => assert_eq!(touches, 4 + 3, "{access:?}"),
+                Access::Pool { .. } => assert_eq!(touches, 3 + 3, "{access:?}"),
+            }
+            assert_eq!(stats.distinct_pages, 6, "{access:?}");
         }
     }
 

@@ -1,8 +1,9 @@
-//! What the experiments observe: every backend reports the bytes it reads from a file (a vertex
-//! record, a meta-node block, a disk page) to a [`PageObserver`], whichever way the pager reads.
-//! An observer turns that into page faults per frame: [`LruTrace`] by a deterministic model of a
-//! page cache, [`OsFaults`] from the operating system's own counters. With [`NoTrace`] nothing is
-//! observed and the calls compile away, so the plain path costs what the reads cost.
+//! What the experiments observe: every byte range a pager takes from its file (a vertex record, a
+//! meta-node block, a disk page) is reported to the [`PageObserver`] attached to it
+//! ([`super::Pager::observe`]), whichever way it reads. An observer turns that into page faults
+//! per frame: [`LruTrace`] by a deterministic model of a page cache, [`OsFaults`] from the
+//! operating system's own counters. Without an observer nothing is reported; the terrain's hot
+//! path is generic over the observer, and [`NoTrace`] compiles to nothing there.
 
 use std::collections::HashSet;
 use std::sync::Mutex;
@@ -29,12 +30,9 @@ impl std::ops::AddAssign for Faults {
     }
 }
 
-/// Receives every read a backend makes from a file. `&self` because readers are shared between
-/// threads (`Sync`).
-pub trait PageObserver: Sync {
-    /// Whether [`read`](Self::read) must be called at all: `false` lets the compiler drop the
-    /// bookkeeping from the hot loops.
-    const TRACES: bool;
+/// Receives every read from a file. `&self` because readers are shared between threads; the
+/// pool's I/O thread reports its loads too.
+pub trait PageObserver: Send + Sync {
     /// `len` bytes at byte `offset` of the file were read.
     #[inline(always)]
     fn read(&self, _offset: u64, _len: u64) {}
@@ -44,13 +42,11 @@ pub trait PageObserver: Sync {
     }
 }
 
-/// Observes nothing: the plain, zero-cost path.
+/// Observes nothing: with it the generic hot paths compile to the plain reads.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct NoTrace;
 
-impl PageObserver for NoTrace {
-    const TRACES: bool = false;
-}
+impl PageObserver for NoTrace {}
 
 /// How the distinct bytes read are tracked, for the lower bound (the bytes read, packed
 /// perfectly into pages).
@@ -132,8 +128,6 @@ impl LruTrace {
 }
 
 impl PageObserver for LruTrace {
-    const TRACES: bool = true;
-
     fn read(&self, offset: u64, len: u64) {
         let mut s = self.lock();
         let first = self.geometry.page_of(offset);
@@ -191,8 +185,6 @@ impl OsFaults {
 }
 
 impl PageObserver for OsFaults {
-    const TRACES: bool = false;
-
     fn take(&self) -> Faults {
         let now = Self::now();
         let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
@@ -203,8 +195,7 @@ impl PageObserver for OsFaults {
 }
 
 /// A shared reference observes as what it points to (so one observer can serve several readers).
-impl<O: PageObserver> PageObserver for &O {
-    const TRACES: bool = O::TRACES;
+impl<O: PageObserver + ?Sized> PageObserver for &O {
     #[inline(always)]
     fn read(&self, offset: u64, len: u64) {
         (**self).read(offset, len)
@@ -252,7 +243,7 @@ mod tests {
 
     #[test]
     fn nothing_is_counted_without_tracing() {
-        assert!(!NoTrace::TRACES);
+        NoTrace.read(0, 4096);
         assert_eq!(NoTrace.take(), Faults::default());
     }
 }

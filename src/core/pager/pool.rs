@@ -350,6 +350,8 @@ enum Command {
 
 struct Board {
     queue: VecDeque<Command>,
+    /// Commands wait on the board while held (see [`BufferPool::hold`]).
+    held: bool,
     /// The I/O thread is executing a command.
     busy: bool,
     /// The I/O thread has exited (shutdown or a loader error); nothing more will be executed.
@@ -396,7 +398,8 @@ impl<L: BlockLoader> Shared<L> {
             let command = {
                 let mut b = lock(&self.board);
                 loop {
-                    if let Some(c) = b.queue.pop_front() {
+                    let runnable = !b.held || matches!(b.queue.front(), Some(Command::Shutdown));
+                    if let Some(c) = runnable.then(|| b.queue.pop_front()).flatten() {
                         b.busy = true;
                         break c;
                     }
@@ -506,7 +509,7 @@ impl<L: BlockLoader> BufferPool<L> {
         let shared = Arc::new(Shared {
             loader,
             table: Mutex::new(Table::new(holders)),
-            board: Mutex::new(Board { queue: VecDeque::new(), busy: false, stopped: false }),
+            board: Mutex::new(Board { queue: VecDeque::new(), held: false, busy: false, stopped: false }),
             work: Condvar::new(),
             idle: Condvar::new(),
             error: Mutex::new(None),
@@ -650,9 +653,21 @@ impl<L: BlockLoader> BufferPool<L> {
         PoolStats { in_use: t.in_use, free: t.free_len, ..t.stats }
     }
 
+    /// Holds the I/O thread (`true`): commands wait on the board until released (`false`). An
+    /// experiment holds it while a frame adapts and drains it after, so what is loaded does not
+    /// depend on how the two threads interleave.
+    pub fn hold(&self, held: bool) {
+        lock(&self.shared.board).held = held;
+        if !held {
+            self.shared.work.notify_one();
+        }
+    }
+
     /// Blocks until the command board is empty and the I/O thread idle (for deterministic tests
-    /// and benchmarks), then returns the first loader error, if one stopped the I/O thread.
+    /// and benchmarks), then returns the first loader error, if one stopped the I/O thread. A
+    /// held board is released first.
     pub fn drain(&self) -> Result<()> {
+        self.hold(false);
         let mut b = lock(&self.shared.board);
         while (!b.queue.is_empty() || b.busy) && !b.stopped {
             b = self.shared.idle.wait(b).unwrap_or_else(|p| p.into_inner());

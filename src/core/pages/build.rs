@@ -33,6 +33,17 @@ pub struct PageBuildOptions {
 }
 
 impl PageBuildOptions {
+    /// Checks the page size: a power of two from 1 KiB to 1 MiB.
+    pub fn validate(&self) -> Result<()> {
+        let page = self.page_bytes;
+        if !page.is_power_of_two() || !(MIN_PAGE_BYTES..=MAX_PAGE_BYTES).contains(&page) {
+            return Err(Error::InvalidArgument(format!(
+                "page size must be a power of two from 1K to 1M bytes, got {page}"
+            )));
+        }
+        Ok(())
+    }
+
     pub fn new(page_bytes: u32, layout: PageLayout) -> PageBuildOptions {
         PageBuildOptions { page_bytes, layout, two_factor: TwoFactorOptions::default(), progress: Progress::hidden() }
     }
@@ -65,12 +76,8 @@ pub struct PageBuildReport {
 
 /// Lays `mesh` out in `options.layout` order and writes it as a page file at `out` (atomically).
 pub fn build_page_file(mesh: &Mesh, out: &Path, options: &PageBuildOptions) -> Result<PageBuildReport> {
+    options.validate()?;
     let page = options.page_bytes;
-    if !page.is_power_of_two() || !(MIN_PAGE_BYTES..=MAX_PAGE_BYTES).contains(&page) {
-        return Err(Error::InvalidArgument(format!(
-            "page size must be a power of two from {MIN_PAGE_BYTES} to {MAX_PAGE_BYTES} bytes, got {page}"
-        )));
-    }
     if mesh.triangles.is_empty() {
         return Err(Error::InvalidArgument("the mesh has no triangles to page".into()));
     }

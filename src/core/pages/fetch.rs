@@ -1,12 +1,12 @@
 //! The per-frame fetch of the disk-page backend (Sajadi et al. 2009, §5) as a
-//! [`MeshFrameSource`]: frustum-cull the disk-page k-d tree, collect the page numbers of the
+//! [`FrameSource`]: frustum-cull the disk-page k-d tree, collect the page numbers of the
 //! surviving leaves (de-duplicated), cull each page by its box and its normal cone, sort, read
 //! the pages whole and in order, and draw every triangle in them. There is no cache of our own:
 //! like the paper, the OS page cache is the only one, and each frame reads all its pages again.
 //!
 //! Pages come through the page file's pager: with read access (the default, the paper's) a run
 //! of consecutive page numbers is one `pread`; the map and the buffer pool serve the same pages
-//! (see [`crate::pager::Access`]). Every page read is reported to the observer. Bytes read are
+//! (see [`crate::pager::Access`]); the pager's observer sees every page read. Bytes read are
 //! pages × page size. The seek distance of a frame is Σ |p_i − p_{i−1}| over its pages
 //! in read order, in pages, where p_0 is the last page the previous frame read (the "head" stays
 //! where the last read left it; page 0 before the first frame), so jumping back to the start of
@@ -17,10 +17,10 @@ use std::time::Instant;
 use super::kdtree::{back_facing, box_in_frustum, query_frustum};
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::flight::frame::{MeshFrameSource, MeshFrameStats, PageFetchFigures};
+use crate::flight::frame::{Frame, FrameSource, FrameStats};
 use crate::format::pages::PageFile;
 use crate::mesh::Bounds;
-use crate::pager::{BlockBuf, NoTrace, PageObserver};
+use crate::pager::{BlockBuf, ReadStats};
 
 /// How the fetch culls.
 #[derive(Clone, Copy, Debug)]
@@ -40,10 +40,9 @@ impl Default for FetchOptions {
     }
 }
 
-/// A page file flown frame by frame, its reads reported to `O`.
-pub struct PageSource<O: PageObserver = NoTrace> {
+/// A page file flown frame by frame.
+pub struct PageSource {
     file: PageFile,
-    observer: O,
     options: FetchOptions,
     triangles: Vec<[f32; 3]>,
     /// This frame's pages (ascending) and the scratch the next frame's are built in.
@@ -53,21 +52,15 @@ pub struct PageSource<O: PageObserver = NoTrace> {
     stack: Vec<u32>,
     buf: BlockBuf,
     head_page: u64,
-    last: Option<PageFetchFigures>,
+    reads: ReadStats,
+    shown: bool,
 }
 
-impl PageSource<NoTrace> {
-    pub fn new(file: PageFile, options: FetchOptions) -> PageSource<NoTrace> {
-        PageSource::observed(file, options, NoTrace)
-    }
-}
-
-impl<O: PageObserver> PageSource<O> {
-    /// A fetch whose page reads are reported to `observer`.
-    pub fn observed(file: PageFile, options: FetchOptions, observer: O) -> PageSource<O> {
+impl PageSource {
+    pub fn new(file: PageFile, options: FetchOptions) -> PageSource {
         PageSource {
+            reads: file.pager().reads(),
             file,
-            observer,
             options,
             triangles: Vec::new(),
             pages: Vec::new(),
@@ -76,7 +69,7 @@ impl<O: PageObserver> PageSource<O> {
             stack: Vec::new(),
             buf: BlockBuf::default(),
             head_page: 0,
-            last: None,
+            shown: false,
         }
     }
 
@@ -84,8 +77,9 @@ impl<O: PageObserver> PageSource<O> {
         &self.file
     }
 
-    pub fn observer(&self) -> &O {
-        &self.observer
+    /// The triangles the last update fetched, three world positions each.
+    pub fn triangles(&self) -> &[[f32; 3]] {
+        &self.triangles
     }
 
     /// The pages the last update read, ascending.
@@ -108,14 +102,13 @@ impl<O: PageObserver> PageSource<O> {
     }
 }
 
-impl<O: PageObserver> MeshFrameSource for PageSource<O> {
-    fn update(&mut self, camera: &Camera, _tolerance_px: f64) -> Result<MeshFrameStats> {
+impl FrameSource for PageSource {
+    fn update(&mut self, camera: &Camera, _tolerance_px: f64) -> Result<FrameStats> {
         if self.options.evict_each_frame {
             self.file.evict_from_page_cache()?;
         }
         let started = Instant::now();
         self.select(camera);
-        let page_bytes = self.file.page_bytes();
         self.triangles.clear();
         let mut read_s = 0.0;
         let mut seek = 0u64;
@@ -128,13 +121,10 @@ impl<O: PageObserver> MeshFrameSource for PageSource<O> {
                 j += 1;
             }
             let t = Instant::now();
-            let (file, observer, triangles) = (&self.file, &self.observer, &mut self.triangles);
+            let (file, triangles) = (&self.file, &mut self.triangles);
             let mut decode_s = 0.0;
             file.for_run(pages[i], (j - i + 1) as u32, &mut self.buf, |p, bytes| {
                 let d = Instant::now();
-                if O::TRACES {
-                    observer.read(file.header().data_offset + p as u64 * page_bytes as u64, page_bytes as u64);
-                }
                 seek += (p as u64).abs_diff(head);
                 head = p as u64;
                 file.decode(p, bytes)?.append_triangles(triangles);
@@ -170,35 +160,42 @@ impl<O: PageObserver> MeshFrameSource for PageSource<O> {
             }
         }
         std::mem::swap(&mut self.pages, &mut self.next_pages);
-        let fetch_ms = started.elapsed().as_secs_f64() * 1e3;
-        let n = self.pages.len() as u64;
-        self.last = Some(PageFetchFigures {
-            pages_requested: n,
-            pages_candidate: self.candidates.len() as u64,
-            bytes_read: n * page_bytes as u64,
-            seek_pages: seek,
-            fetch_ms,
-            read_ms: read_s * 1e3,
-        });
-        Ok(MeshFrameStats {
+        let reads = self.file.pager().reads();
+        let stats = FrameStats {
+            update_ms: Some(started.elapsed().as_secs_f64() * 1e3),
+            changed: gained + lost > 0 || !self.shown,
+            triangles: self.triangles.len() as u64 / 3,
             splits: gained,
             collapses: lost,
-            triangles: self.triangles.len() as u64 / 3,
-            pages_read: n,
-            adapt_ms: fetch_ms,
-            ..MeshFrameStats::default()
-        })
+            pages_read: reads.pages - self.reads.pages,
+            bytes_read: reads.bytes - self.reads.bytes,
+            pages_candidate: self.candidates.len() as u64,
+            pages_requested: self.pages.len() as u64,
+            seek_pages: seek,
+            read_ms: read_s * 1e3,
+            ..FrameStats::default()
+        };
+        self.reads = reads;
+        self.shown = true;
+        Ok(stats)
     }
 
-    fn triangles(&self) -> &[[f32; 3]] {
-        &self.triangles
+    fn frame(&self) -> Frame<'_> {
+        Frame::Triangles(&self.triangles)
     }
 
     fn bounds(&self) -> Bounds {
         self.file.header().bounds
     }
 
-    fn page_fetch(&self) -> Option<PageFetchFigures> {
-        self.last
+    fn describe(&self) -> String {
+        let h = self.file.header();
+        format!(
+            "pages, {} layout, {} pages of {} B, {} access",
+            h.layout.name(),
+            h.pages,
+            h.page_bytes,
+            self.file.pager().access().name()
+        )
     }
 }

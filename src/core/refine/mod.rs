@@ -29,10 +29,11 @@ use glam::DVec3;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::camera::{Camera, PLANES};
+use crate::camera::Camera;
 use crate::format::terrain::{Record, TerrainFile};
 use crate::layout::hierarchy::Grid;
 use crate::layout::{Layout, LayoutVisitor, Vertex};
+use crate::lod::Lod;
 use crate::refine::metric::{ErrorMetric, Isotropic, MetricKind, Projected};
 
 /// A strip vertex: grid coordinates (`x` east, `y` north, in posts). The renderer turns them into
@@ -186,33 +187,21 @@ impl std::ops::AddAssign for RefineCounters {
     }
 }
 
-/// Everything the active test needs for one frame, in world metres.
+/// Everything the active test needs for one frame, in world metres: the shared [`Lod`] test, the
+/// grid's spacing, the rounding slack and the geomorph radius.
 #[derive(Clone, Debug)]
 pub struct View<M: ErrorMetric> {
-    pub metric: M,
-    eye: DVec3,
+    pub lod: Lod<M>,
     spacing_m: [f64; 2],
-    kappa: f64,
     kappa_inner: f64,
-    normals: [DVec3; PLANES],
     /// Slack added to a vertex's radius per level (metres), so that rounding in the f64 test can
-    /// never make a child active while its parent is not; ~1e-12 of the scene's scale.
+    /// never make a child active while its parent is not ([`crate::lod::margin_for_scale`]).
     margin_m: f64,
     cull: bool,
     morph: bool,
 }
 
-/// Result of testing one vertex.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Test {
-    Inactive,
-    /// Error asks for refinement but the sphere is outside the frustum.
-    Culled,
-    /// Active; planes the sphere is not yet known to be inside of.
-    Active {
-        mask: u8,
-    },
-}
+pub use crate::lod::Test;
 
 impl<M: ErrorMetric> View<M> {
     /// Builds the per-frame view. `extent_m` and `z_range_m` give the scene's scale for the rounding
@@ -225,7 +214,7 @@ impl<M: ErrorMetric> View<M> {
         extent_m: [f64; 2],
         z_range_m: [f64; 2],
     ) -> View<M> {
-        let kappa = camera.kappa(options.tolerance_px);
+        let lod = Lod::new(camera, options.tolerance_px, metric);
         let ratio = options.morph_ratio.unwrap_or(1.0);
         let scale = [
             extent_m[0],
@@ -239,13 +228,10 @@ impl<M: ErrorMetric> View<M> {
         .filter(|v| v.is_finite())
         .fold(0.0, f64::max);
         View {
-            metric,
-            eye: camera.eye_in_world,
+            kappa_inner: lod.kappa / ratio,
+            lod,
             spacing_m,
-            kappa,
-            kappa_inner: kappa / ratio,
-            normals: camera.frustum_normals(),
-            margin_m: scale * (2f64).powi(-40),
+            margin_m: crate::lod::margin_for_scale(scale),
             cull: options.cull,
             morph: options.morph_ratio.is_some(),
         }
@@ -254,7 +240,7 @@ impl<M: ErrorMetric> View<M> {
     /// The plane mask a refinement starts with.
     pub fn full_mask(&self) -> u8 {
         if self.cull {
-            (1u8 << PLANES) - 1
+            crate::lod::ALL_PLANES
         } else {
             0
         }
@@ -269,30 +255,9 @@ impl<M: ErrorMetric> View<M> {
     /// The active test with frustum culling against the planes in `mask` (see [`Test`]).
     #[inline(always)]
     pub fn test<const CULL: bool>(&self, x: u32, y: u32, level: u32, rec: Record, mask: u8) -> Test {
-        let rel = self.position(x, y, rec.z) - self.eye;
+        let rel = self.position(x, y, rec.z) - self.lod.eye;
         let r = rec.radius as f64 + self.margin_m * level as f64;
-        let reach = self.kappa * rec.error as f64 + r;
-        // Written so that a NaN anywhere (a corrupt record) reads as inactive.
-        let active = reach * reach > self.metric.distance_sq(rel);
-        if !active {
-            return Test::Inactive;
-        }
-        let mut mask = mask;
-        if CULL && mask != 0 {
-            for (k, n) in self.normals.iter().enumerate() {
-                let bit = 1u8 << k;
-                if mask & bit != 0 {
-                    let s = n.dot(rel);
-                    if s < -r {
-                        return Test::Culled;
-                    }
-                    if s > r {
-                        mask &= !bit;
-                    }
-                }
-            }
-        }
-        Test::Active { mask }
+        self.lod.test::<CULL>(rel, rec.error as f64, r, mask)
     }
 
     /// Whether a vertex is active, evaluated from scratch (all planes); equals what refinement
@@ -309,13 +274,13 @@ impl<M: ErrorMetric> View<M> {
     /// Geomorph blend of an active vertex: 0 where it just became active, 1 inside the inner radius.
     #[inline(always)]
     fn blend(&self, x: u32, y: u32, level: u32, rec: Record) -> f32 {
-        let rel = self.position(x, y, rec.z) - self.eye;
+        let rel = self.position(x, y, rec.z) - self.lod.eye;
         let r = rec.radius as f64 + self.margin_m * level as f64;
-        let outer = self.kappa * rec.error as f64 + r;
+        let outer = self.lod.kappa * rec.error as f64 + r;
         let inner = self.kappa_inner * rec.error as f64 + r;
         let span = outer * outer - inner * inner;
         if span > 0.0 && span.is_finite() {
-            ((outer * outer - self.metric.distance_sq(rel)) / span).clamp(0.0, 1.0) as f32
+            ((outer * outer - self.lod.metric.distance_sq(rel)) / span).clamp(0.0, 1.0) as f32
         } else if rec.error > 0.0 {
             1.0 // infinite error (never refined away)
         } else {
@@ -327,13 +292,12 @@ impl<M: ErrorMetric> View<M> {
 
     /// Whether a point (no radius) lies inside the frustum (always, with culling off).
     pub fn point_in_frustum(&self, p: DVec3) -> bool {
-        !self.cull || self.normals.iter().all(|n| n.dot(p - self.eye) >= 0.0)
+        !self.cull || self.lod.point_in_frustum(p)
     }
 
     /// Whether `κ δ > D`: an un-nested error at `p` projects over the tolerance.
     pub fn error_projects_over(&self, p: DVec3, error_m: f64) -> bool {
-        let reach = self.kappa * error_m;
-        reach * reach > self.metric.distance_sq(p - self.eye)
+        self.lod.error_projects_over(p, error_m)
     }
 }
 
@@ -620,7 +584,8 @@ impl Refiner {
     }
 
     /// Refines a terrain file for `camera`, writing the strip into `strip`: in place when the
-    /// file is mapped, else through its pager.
+    /// file is mapped (through [`MappedRecords`] when its pager has an observer), else through
+    /// its pager.
     pub fn refine_file(
         &mut self,
         terrain: &TerrainFile,
@@ -628,28 +593,14 @@ impl Refiner {
         options: &RefineOptions,
         strip: &mut Strip,
     ) -> crate::Result<RefineCounters> {
-        match terrain.mapped_records() {
-            Some(records) => Ok(self.refine_source(terrain, records, camera, options, strip)),
-            None => self.refine_observed(terrain, crate::pager::NoTrace, camera, options, strip),
-        }
-    }
-
-    /// Like [`Self::refine_file`], reporting every record read to `observer`.
-    pub fn refine_observed<O: crate::pager::PageObserver>(
-        &mut self,
-        terrain: &TerrainFile,
-        observer: O,
-        camera: &Camera,
-        options: &RefineOptions,
-        strip: &mut Strip,
-    ) -> crate::Result<RefineCounters> {
-        match terrain.mapped_records() {
-            Some(records) => {
+        match (terrain.mapped_records(), terrain.pager().observer()) {
+            (Some(records), None) => Ok(self.refine_source(terrain, records, camera, options, strip)),
+            (Some(records), Some(observer)) => {
                 let source = MappedRecords::new(records, terrain.header().payload_offset, observer);
                 Ok(self.refine_source(terrain, &source, camera, options, strip))
             }
-            None => {
-                let source = PagerRecords::new(terrain, observer);
+            (None, _) => {
+                let source = PagerRecords::new(terrain);
                 let counters = self.refine_source(terrain, &source, camera, options, strip);
                 source.take_error()?;
                 Ok(counters)

@@ -1,14 +1,14 @@
 //! Where refinement reads vertex records from, by layout index ([`RecordSource`]): a terrain
-//! file's pager, whatever its access. A mapped file is read in place ([`MappedRecords`], or the
-//! plain `[Record]` slice: the fast path); any other access goes block by block through the
-//! pager ([`PagerRecords`]: the pool, or positioned reads). Both report every record read to a
-//! [`PageObserver`] (the page-fault experiments); with [`NoTrace`] that costs nothing.
+//! file's pager, whatever its access. A mapped file is read in place (the plain `[Record]` slice,
+//! the fast path, or [`MappedRecords`], which reports every record read to an observer, as the
+//! pager reports every block it takes); any other access goes block by block through the pager
+//! ([`PagerRecords`]: the pool, or positioned reads), whose observer sees the blocks read.
 
 use std::sync::Mutex;
 
 use crate::error::{Error, Result};
 use crate::format::terrain::{Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
-use crate::pager::{NoTrace, PageObserver, Pager};
+use crate::pager::{PageObserver, Pager};
 
 /// Where refinement reads vertex records from, by layout index.
 pub trait RecordSource: Sync {
@@ -54,38 +54,27 @@ impl<'a, O: PageObserver> MappedRecords<'a, O> {
 impl<O: PageObserver> RecordSource for MappedRecords<'_, O> {
     #[inline(always)]
     fn record(&self, index: u64) -> Record {
-        if O::TRACES {
-            self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
-        }
+        self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
         self.records[index as usize]
     }
 
     #[inline(always)]
     fn prefetch(&self, index: u64) {
-        if !O::TRACES {
-            self.records.prefetch(index);
-        }
+        self.records.prefetch(index);
     }
 }
 
 /// A terrain's records read block by block through its pager (pool or positioned reads): record
 /// `i` is in block `i / RECORDS_PER_BLOCK`. A read that fails gives a record that is never active
 /// (so refinement stops above it) and is kept for [`Self::take_error`].
-pub struct PagerRecords<'a, O: PageObserver = NoTrace> {
+pub struct PagerRecords<'a> {
     pager: &'a Pager,
-    payload_offset: u64,
-    observer: O,
     error: Mutex<Option<Error>>,
 }
 
-impl<'a, O: PageObserver> PagerRecords<'a, O> {
-    pub fn new(terrain: &'a TerrainFile, observer: O) -> Self {
-        PagerRecords {
-            pager: terrain.pager(),
-            payload_offset: terrain.header().payload_offset,
-            observer,
-            error: Mutex::new(None),
-        }
+impl<'a> PagerRecords<'a> {
+    pub fn new(terrain: &'a TerrainFile) -> Self {
+        PagerRecords { pager: terrain.pager(), error: Mutex::new(None) }
     }
 
     /// The first read error since the last call.
@@ -100,11 +89,8 @@ impl<'a, O: PageObserver> PagerRecords<'a, O> {
 /// The record no refinement makes active (NaN error and radius fail the active test).
 const UNREADABLE: Record = Record { z: 0.0, error: f32::NAN, radius: f32::NAN };
 
-impl<O: PageObserver> RecordSource for PagerRecords<'_, O> {
+impl RecordSource for PagerRecords<'_> {
     fn record(&self, index: u64) -> Record {
-        if O::TRACES {
-            self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
-        }
         let at = (index % RECORDS_PER_BLOCK) as usize * RECORD_BYTES as usize;
         match self.pager.block((index / RECORDS_PER_BLOCK) as u32) {
             Ok(block) if at + RECORD_BYTES as usize <= block.len() => {

@@ -1,0 +1,100 @@
+//! `relief convert`: a DEM into a terrain file.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::bail;
+use relief::dem::DemFormat;
+use relief::layout::LayoutKind;
+use relief::preprocess::convert::{convert, ConvertOptions};
+
+use super::{check_output_file, format_parser, layout_parser, print_json, progress};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// DEM to read: GeoTIFF, PNG (16-bit gray, Terrain-RGB, Terrarium), OpenEXR, SRTM .hgt or
+    /// ESRI ASCII grid; detected from content and extension unless --format is given.
+    pub input: PathBuf,
+    /// Terrain file to write (replaced atomically if it exists).
+    pub output: PathBuf,
+    /// Record order in the file.
+    #[arg(long, value_parser = layout_parser(), default_value = "interleaved")]
+    pub layout: LayoutKind,
+    /// Tile side in posts for --layout tiled (a power of two); default: the largest tile that
+    /// fits one 4 KiB page (16 for 12-byte records).
+    #[arg(long, value_name = "N")]
+    pub tile: Option<u32>,
+    /// Post spacing in metres, "S" or "SX,SY"; overrides the file's georeferencing. Needed for
+    /// formats that carry none (PNG, EXR); otherwise 1 m is assumed and `info` says so.
+    #[arg(long, value_name = "M", allow_hyphen_values = true)]
+    pub spacing: Option<String>,
+    /// Multiply source values by this to get metres (e.g. 0.3048 for feet, 0.01 for cm; -1 flips
+    /// depths into heights).
+    #[arg(long, value_name = "S", default_value_t = 1.0, allow_negative_numbers = true)]
+    pub z_scale: f64,
+    /// Add this many metres after scaling (e.g. -30 for a datum 30 m above the source's zero).
+    #[arg(long, value_name = "M", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub z_offset: f64,
+    /// Force the input format instead of detecting it.
+    #[arg(long, value_parser = format_parser())]
+    pub format: Option<DemFormat>,
+    /// Directory for the scratch grid (default: the output's directory). Needs about
+    /// 12 bytes per post of the padded grid.
+    #[arg(long, value_name = "DIR")]
+    pub scratch_dir: Option<PathBuf>,
+    /// Print the conversion report as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// No progress bars.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+fn parse_spacing(s: &str) -> anyhow::Result<[f64; 2]> {
+    let nums: Result<Vec<f64>, _> = s.split(',').map(|p| p.trim().parse::<f64>()).collect();
+    match nums.ok().as_deref() {
+        Some([v]) if *v > 0.0 && v.is_finite() => Ok([*v, *v]),
+        Some([x, y]) if *x > 0.0 && *y > 0.0 && x.is_finite() && y.is_finite() => Ok([*x, *y]),
+        _ => bail!("--spacing: expected positive metres as S or SX,SY, got '{s}'"),
+    }
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    check_output_file("", &a.output)?;
+    if let Some(d) = &a.scratch_dir {
+        if !d.is_dir() {
+            bail!("--scratch-dir: {}: no such directory", d.display());
+        }
+    }
+    let mut opts = ConvertOptions::new(a.layout);
+    opts.tile = a.tile;
+    opts.spacing_m = a.spacing.as_deref().map(parse_spacing).transpose()?;
+    opts.z_scale = a.z_scale;
+    opts.z_offset = a.z_offset;
+    opts.format = a.format;
+    opts.scratch_dir = a.scratch_dir;
+    opts.progress = progress(a.quiet);
+    let r = convert(&a.input, &a.output, &opts)?;
+    if a.json {
+        print_json(&r)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    if r.spacing_source.starts_with("assumed") {
+        eprintln!("relief: warning: {}: post spacing {}", a.input.display(), r.spacing_source);
+    }
+    println!(
+        "{} -> {}: {}x{} {} padded to {}², layout {}, {} records, {:.2} s ({:.1} M vertices/s){}",
+        a.input.display(),
+        a.output.display(),
+        r.source_width,
+        r.source_height,
+        r.format,
+        r.grid_size,
+        r.layout,
+        r.records,
+        r.seconds,
+        r.vertices_per_s / 1e6,
+        if r.nodata_filled > 0 { format!(", {} nodata samples filled", r.nodata_filled) } else { String::new() }
+    );
+    Ok(ExitCode::SUCCESS)
+}

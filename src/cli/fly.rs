@@ -1,0 +1,69 @@
+//! `relief fly`: a terrain in a window, or headless along a path.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+
+use relief::camera::UpAxis;
+use relief::flight::terrain::TerrainSource;
+use relief::format::terrain::{TerrainFile, RECORD_BYTES};
+use relief::pager::Access;
+use relief::render::{DrawStyle, Gpu, TerrainPresenter};
+use relief::window::{fly_window, WindowOptions};
+
+use super::{progress, AccessArgs, FlyArgs, RefineArgs};
+
+/// Where refinement runs.
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Refinement {
+    /// On its own thread: the render thread draws the newest finished strip and never waits.
+    Thread,
+    /// Before each frame, on the render thread: each frame is drawn with its own view's strip.
+    Sync,
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Terrain file (default: the bundled terrain).
+    pub file: Option<PathBuf>,
+    #[command(flatten)]
+    pub fly: FlyArgs,
+    #[command(flatten)]
+    pub refine: RefineArgs,
+    /// Where refinement runs [default: thread in a window, sync headless].
+    #[arg(long, value_enum)]
+    pub refinement: Option<Refinement>,
+    #[command(flatten)]
+    pub access: AccessArgs,
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let refine = a.refine.options()?;
+    let flight = a.fly.check()?;
+    let file = match a.file {
+        Some(f) => f,
+        None => relief::bundled_terrain(progress(a.fly.quiet))?,
+    };
+    let access =
+        a.access.access(Access::Map, || Ok(TerrainFile::open(&file)?.grid().vertices() * RECORD_BYTES as u64))?;
+    let terrain = Arc::new(TerrainFile::open_with(&file, access)?);
+    let Some(flight) = flight else {
+        let options = WindowOptions {
+            window: a.fly.window()?,
+            refine,
+            wireframe: a.fly.wireframe,
+            threads: a.refine.threads,
+            sync: a.refinement == Some(Refinement::Sync),
+            progress: progress(a.fly.quiet),
+        };
+        fly_window(terrain, options)?;
+        return Ok(ExitCode::SUCCESS);
+    };
+    let threaded = a.refinement == Some(Refinement::Thread);
+    let mut source = TerrainSource::new(terrain.clone(), refine, a.refine.threads, threaded)?;
+    let gpu = if a.fly.no_render { None } else { Some(Gpu::headless()?) };
+    let (w, h, style, quiet) = (a.fly.width, a.fly.height, DrawStyle { wireframe: a.fly.wireframe }, a.fly.quiet);
+    super::show::headless(&mut source, &file, &flight, UpAxis::Z, refine.tolerance_px, &a.fly, gpu.as_ref(), |gpu| {
+        Ok(Box::new(TerrainPresenter::new(gpu, terrain, w, h, style, progress(quiet))?))
+    })
+}

@@ -1,0 +1,371 @@
+//! The command line's pieces: one module per command (`convert`, `fly`, …), the argument groups
+//! several commands share, and the parsing of values the library takes in other units. Nothing
+//! here computes what the library does; a command parses, checks its outputs can be written,
+//! calls the library and prints.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use clap::builder::{PossibleValuesParser, TypedValueParser};
+use clap::Args;
+use glam::DVec3;
+use relief::camera::{Camera, UpAxis};
+use relief::dem::DemFormat;
+use relief::flight::FlightPath;
+use relief::layout::LayoutKind;
+use relief::pager::Access;
+use relief::refine::metric::MetricKind;
+use relief::refine::RefineOptions;
+use relief::sys::progress::Progress;
+
+pub mod convert;
+pub mod fly;
+pub mod info;
+pub mod layouts;
+pub mod mesh;
+pub mod pages;
+pub mod path;
+pub mod refine;
+pub mod render;
+pub mod show;
+pub mod verify;
+
+/// `--layout` values: the library's layout names, listed in `--help`.
+pub fn layout_parser() -> impl TypedValueParser<Value = LayoutKind> {
+    PossibleValuesParser::new(LayoutKind::ALL.map(LayoutKind::name))
+        .map(|name| LayoutKind::from_name(&name).expect("a possible value"))
+}
+
+/// `--format` values: the library's DEM format names, listed in `--help`.
+pub fn format_parser() -> impl TypedValueParser<Value = DemFormat> {
+    PossibleValuesParser::new(DemFormat::ALL.map(DemFormat::name))
+        .map(|name| DemFormat::from_name(&name).expect("a possible value"))
+}
+
+/// `--metric` values: the library's metric names.
+pub fn metric_parser() -> impl TypedValueParser<Value = MetricKind> {
+    PossibleValuesParser::new(MetricKind::ALL.map(MetricKind::name))
+        .map(|name| MetricKind::from_name(&name).expect("a possible value"))
+}
+
+/// `--up` values.
+pub fn up_parser() -> impl TypedValueParser<Value = UpAxis> {
+    PossibleValuesParser::new(UpAxis::ALL.map(UpAxis::name))
+        .map(|name| UpAxis::from_name(&name).expect("a possible value"))
+}
+
+/// How a file is read at run time (`--access`, `--memory` for the pool).
+#[derive(Args, Clone)]
+pub struct AccessArgs {
+    /// How the file is read: map (the OS pages a memory map in), read (a positioned read of each
+    /// block when it is wanted; only the OS caches) or pool (a buffer pool of --memory bytes with
+    /// an I/O thread and prefetch) [default: map; read for page files].
+    #[arg(long, value_parser = PossibleValuesParser::new(Access::NAMES))]
+    pub access: Option<String>,
+    /// The pool's memory: bytes with a binary K/M/G suffix (64M), or a fraction A/B of the file's
+    /// data (1/4).
+    #[arg(long, value_name = "BYTES|A/B", default_value = "1/4")]
+    pub memory: String,
+}
+
+impl AccessArgs {
+    /// The access asked for (`default` when none); a pool's fraction is of `data_bytes()`.
+    pub fn access(&self, default: Access, data_bytes: impl FnOnce() -> relief::Result<u64>) -> anyhow::Result<Access> {
+        Ok(match self.access.as_deref() {
+            None => default,
+            Some("map") => Access::Map,
+            Some("read") => Access::Read,
+            Some(_) => Access::Pool { bytes: parse_memory("--memory", &self.memory, data_bytes()?)? },
+        })
+    }
+}
+
+/// The image a view is refined or drawn for.
+#[derive(Args, Clone, Copy)]
+pub struct ImageArgs {
+    /// Image width, pixels.
+    #[arg(long, value_name = "W", default_value_t = 1920)]
+    pub width: u32,
+    /// Image height, pixels.
+    #[arg(long, value_name = "H", default_value_t = 1080)]
+    pub height: u32,
+    /// Horizontal field of view, degrees.
+    #[arg(long, value_name = "DEG", default_value_t = 60.0, allow_negative_numbers = true)]
+    pub fov: f64,
+}
+
+/// How to refine a terrain.
+#[derive(Args, Clone, Copy)]
+pub struct RefineArgs {
+    /// Screen-space error tolerance τ, pixels.
+    #[arg(long, value_name = "PX", default_value_t = 1.0, allow_negative_numbers = true)]
+    pub tolerance: f64,
+    /// Screen-space error metric.
+    #[arg(long, value_parser = metric_parser(), default_value = "isotropic")]
+    pub metric: MetricKind,
+    /// Do not cull to the view frustum (refine the whole terrain for the eye).
+    #[arg(long)]
+    pub no_cull: bool,
+    /// Geomorphing: blend vertices in between the distances where their error projects to τ
+    /// and to RATIO·τ (RATIO > 1).
+    #[arg(long, value_name = "RATIO", allow_negative_numbers = true)]
+    pub geomorph: Option<f64>,
+    /// Refinement threads (1: no pool).
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub threads: usize,
+}
+
+impl RefineArgs {
+    /// The validated refinement options.
+    pub fn options(&self) -> anyhow::Result<RefineOptions> {
+        check_tolerance(self.tolerance)?;
+        if let Some(r) = self.geomorph {
+            if !(r > 1.0 && r.is_finite()) {
+                bail!("--geomorph: expected a ratio greater than 1, got {r}");
+            }
+        }
+        if self.threads == 0 {
+            bail!("--threads must be at least 1");
+        }
+        Ok(RefineOptions {
+            tolerance_px: self.tolerance,
+            metric: self.metric,
+            cull: !self.no_cull,
+            morph_ratio: self.geomorph,
+        })
+    }
+}
+
+/// One view of a terrain and how to refine it (`refine`, `render`).
+#[derive(Args)]
+pub struct ViewArgs {
+    /// Eye position "X,Y,Z", metres.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    pub eye: String,
+    /// Point looked at "X,Y,Z", metres.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
+    pub look: String,
+    /// Up direction "X,Y,Z".
+    #[arg(long, value_name = "X,Y,Z", default_value = "0,0,1", allow_hyphen_values = true)]
+    pub up: String,
+    #[command(flatten)]
+    pub image: ImageArgs,
+    #[command(flatten)]
+    pub refine: RefineArgs,
+}
+
+impl ViewArgs {
+    /// The validated camera and refinement options.
+    pub fn resolve(&self) -> anyhow::Result<(Camera, RefineOptions)> {
+        let options = self.refine.options()?;
+        let camera = Camera::new(
+            parse_vec3("--eye", &self.eye)?,
+            parse_vec3("--look", &self.look)?,
+            parse_vec3("--up", &self.up)?,
+            self.image.fov,
+            self.image.width,
+            self.image.height,
+        )?;
+        Ok((camera, options))
+    }
+}
+
+/// Flying in a window or headless along a path: what every `fly` and `view` command shares.
+#[derive(Args)]
+pub struct FlyArgs {
+    /// Fly headless along this path (see `relief path`) instead of opening a window.
+    #[arg(long, value_name = "PATH.json")]
+    pub path: Option<PathBuf>,
+    /// Headless: write each frame as DIR/frame_00000.png, ...
+    #[arg(long, value_name = "DIR", requires = "path")]
+    pub frames_out: Option<PathBuf>,
+    /// Headless: write the per-frame figures and the summary as JSON ({"frames":[…],"summary":{…}}).
+    #[arg(long, value_name = "OUT.json", requires = "path")]
+    pub stats: Option<PathBuf>,
+    /// Headless: print the per-frame figures and the summary as JSON on stdout.
+    #[arg(long, requires = "path")]
+    pub json: bool,
+    /// Image or window width, pixels.
+    #[arg(long, value_name = "W", default_value_t = 1280)]
+    pub width: u32,
+    /// Image or window height, pixels.
+    #[arg(long, value_name = "H", default_value_t = 720)]
+    pub height: u32,
+    /// Horizontal field of view, degrees.
+    #[arg(long, value_name = "DEG", default_value_t = 60.0, allow_negative_numbers = true)]
+    pub fov: f64,
+    /// Draw the triangles' edges.
+    #[arg(long)]
+    pub wireframe: bool,
+    /// Directory for screenshots and recorded paths (window).
+    #[arg(long, value_name = "DIR", default_value = ".")]
+    pub output_dir: PathBuf,
+    /// Window: start at this eye position "X,Y,Z" (with --look), world units.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, requires = "look", conflicts_with = "path")]
+    pub eye: Option<String>,
+    /// Window: start looking at this point "X,Y,Z" (with --eye).
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, requires = "eye")]
+    pub look: Option<String>,
+    /// Window: close after this many frames (scripted runs).
+    #[arg(long, value_name = "N", conflicts_with = "path")]
+    pub exit_after_frames: Option<u64>,
+    /// Headless: update only, no rendering (times the refinement, adaptation or fetch alone).
+    #[arg(long, requires = "path")]
+    pub no_render: bool,
+    /// Headless: start frames at least MS milliseconds apart, like a display (with --no-render,
+    /// the time a renderer would take, during which prefetching goes on); not counted in frame_ms.
+    #[arg(long, value_name = "MS", default_value_t = 0.0, requires = "path", allow_negative_numbers = true)]
+    pub pace: f64,
+    /// No progress bars.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+impl FlyArgs {
+    /// Rejects numbers no flight can use and output paths that cannot be written, before
+    /// anything is read; opens the path file.
+    pub fn check(&self) -> anyhow::Result<Option<FlightPath>> {
+        if self.width == 0 || self.height == 0 {
+            bail!("--width and --height must be at least 1 pixel");
+        }
+        if !(self.pace >= 0.0 && self.pace.is_finite()) {
+            bail!("--pace: expected milliseconds ≥ 0, got {}", self.pace);
+        }
+        if !(self.fov > 0.0 && self.fov < 180.0) {
+            bail!("--fov: expected degrees between 0 and 180, got {}", self.fov);
+        }
+        if let Some(s) = &self.stats {
+            check_output_file("--stats", s)?;
+        }
+        let flight = match &self.path {
+            Some(p) => Some(FlightPath::load(p)?),
+            None => {
+                relief::window::check_display()?;
+                None
+            }
+        };
+        if let Some(d) = &self.frames_out {
+            // Made when the first frame is drawn; here only whether it can be.
+            if d.exists() && !d.is_dir() {
+                bail!("--frames-out: {} is not a directory", d.display());
+            }
+            if !d.exists() {
+                check_output_file("--frames-out", d)?;
+            }
+        }
+        Ok(flight)
+    }
+
+    /// A window's start from `--eye` and `--look`.
+    pub fn start(&self) -> anyhow::Result<Option<(DVec3, DVec3)>> {
+        Ok(match (&self.eye, &self.look) {
+            (Some(e), Some(l)) => Some((parse_vec3("--eye", e)?, parse_vec3("--look", l)?)),
+            _ => None,
+        })
+    }
+
+    /// The window settings.
+    pub fn window(&self) -> anyhow::Result<relief::window::WindowSettings> {
+        Ok(relief::window::WindowSettings {
+            width_px: self.width,
+            height_px: self.height,
+            fov_x_deg: self.fov,
+            output_dir: self.output_dir.clone(),
+            start: self.start()?,
+            exit_after_frames: self.exit_after_frames,
+        })
+    }
+}
+
+pub fn check_tolerance(tolerance_px: f64) -> anyhow::Result<()> {
+    if !(tolerance_px > 0.0 && tolerance_px.is_finite()) {
+        bail!("--tolerance: expected a positive number of pixels, got {tolerance_px}");
+    }
+    Ok(())
+}
+
+/// Fails unless `path` can be created or replaced: its directory exists and is writable, and it
+/// is not itself a directory. Run before the work, so a long job never ends on a typo. `flag`
+/// names the option the path came from (empty for an operand).
+pub fn check_output_file(flag: &str, path: &Path) -> anyhow::Result<()> {
+    let what = if flag.is_empty() { path.display().to_string() } else { format!("{flag}: {}", path.display()) };
+    if path.is_dir() {
+        bail!("{what}: is a directory");
+    }
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !dir.is_dir() {
+        bail!("{what}: the directory {} does not exist", dir.display());
+    }
+    // Writability as the output will be written: a temporary file beside it.
+    tempfile::Builder::new()
+        .prefix(".relief-check.")
+        .tempfile_in(dir)
+        .with_context(|| format!("{what}: cannot write in {}", dir.display()))?;
+    Ok(())
+}
+
+pub fn parse_vec3(flag: &str, s: &str) -> anyhow::Result<DVec3> {
+    let nums: Result<Vec<f64>, _> = s.split(',').map(|p| p.trim().parse::<f64>()).collect();
+    match nums.ok().as_deref() {
+        Some(&[x, y, z]) if x.is_finite() && y.is_finite() && z.is_finite() => Ok(DVec3::new(x, y, z)),
+        _ => bail!("{flag}: expected three finite numbers X,Y,Z, got '{s}'"),
+    }
+}
+
+/// Bytes with an optional binary K/M/G suffix ("4096", "64K", "1.5G").
+pub fn parse_bytes(flag: &str, s: &str) -> anyhow::Result<u64> {
+    let t = s.trim();
+    let (num, mult) = match t.char_indices().last() {
+        Some((i, 'K' | 'k')) => (&t[..i], 1u64 << 10),
+        Some((i, 'M' | 'm')) => (&t[..i], 1 << 20),
+        Some((i, 'G' | 'g')) => (&t[..i], 1 << 30),
+        _ => (t, 1),
+    };
+    match num.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 && v * (mult as f64) < u64::MAX as f64 => Ok((v * mult as f64) as u64),
+        _ => bail!("{flag}: expected bytes such as 4096, 64K or 1G, got '{s}'"),
+    }
+}
+
+/// Bytes, or "A/B" of `data_bytes` (the input's data: a terrain's records, a mesh, a tree).
+pub fn parse_memory(flag: &str, s: &str, data_bytes: u64) -> anyhow::Result<u64> {
+    if let Some((a, b)) = s.split_once('/') {
+        match (a.trim().parse::<f64>(), b.trim().parse::<f64>()) {
+            (Ok(a), Ok(b)) if a > 0.0 && b > 0.0 && a.is_finite() && b.is_finite() => {
+                return Ok((data_bytes as f64 * a / b) as u64)
+            }
+            _ => bail!("{flag}: expected bytes (64M) or a fraction of the input's data (1/16), got '{s}'"),
+        }
+    }
+    parse_bytes(flag, s)
+}
+
+/// Progress bars on stderr where it is a terminal, unless `quiet`.
+pub fn progress(quiet: bool) -> Progress {
+    Progress::new(!quiet && std::io::stderr().is_terminal())
+}
+
+pub fn fmt_bytes(b: u64) -> String {
+    const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut v = b as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < UNITS.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{b} B")
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}
+
+/// Prints `value` as pretty JSON on stdout.
+pub fn print_json(value: &impl serde::Serialize) -> anyhow::Result<()> {
+    println!("{}", serde_json::to_string_pretty(value)?);
+    Ok(())
+}

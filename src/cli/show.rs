@@ -1,0 +1,117 @@
+//! Flying any source headless along a path (the one loop, `flight::frame::fly`), or a mesh
+//! source in a window; and the one line a flight's summary prints as.
+
+use std::path::Path;
+use std::process::ExitCode;
+
+use relief::camera::{Camera, UpAxis};
+use relief::flight::frame::{fly, FlightOptions, FlightReport, FrameSource, Presenter};
+use relief::flight::FlightPath;
+use relief::render::Gpu;
+use relief::window::{mesh_window, MeshWindowOptions};
+
+use super::{fmt_bytes, progress, FlyArgs};
+
+/// The camera of every frame of a flight path, with `up` up (errors name the file and the frame).
+pub fn cameras(flight: &FlightPath, file: &Path, up: UpAxis, fly: &FlyArgs) -> anyhow::Result<Vec<Camera>> {
+    (0..flight.frames.len())
+        .map(|k| {
+            flight
+                .camera_with_up(k, up, fly.fov, fly.width, fly.height)
+                .map_err(|e| anyhow::anyhow!("{}: frame {k}: {e}", file.display()))
+        })
+        .collect()
+}
+
+/// Flies `source` along `flight` headless, drawing with what `presenter` makes (none with
+/// `--no-render`), and prints the report as the flags ask.
+pub fn headless<'g>(
+    source: &mut dyn FrameSource,
+    file: &Path,
+    flight: &FlightPath,
+    up: UpAxis,
+    tolerance_px: f64,
+    fly_args: &FlyArgs,
+    gpu: Option<&'g Gpu>,
+    presenter: impl FnOnce(&'g Gpu) -> relief::Result<Box<dyn Presenter + 'g>>,
+) -> anyhow::Result<ExitCode> {
+    let path = fly_args.path.as_deref().unwrap_or(Path::new("path"));
+    let cameras = cameras(flight, path, up, fly_args)?;
+    let mut options = FlightOptions::new(fly_args.width, fly_args.height, tolerance_px);
+    options.pace_ms = fly_args.pace;
+    options.frames_out = fly_args.frames_out.clone();
+    options.stats_out = fly_args.stats.clone();
+    options.progress = progress(fly_args.quiet);
+    let mut presenter = match gpu {
+        Some(gpu) if !fly_args.no_render => Some(presenter(gpu)?),
+        _ => None,
+    };
+    let report = fly(source, &cameras, presenter.as_deref_mut(), &options)?;
+    if fly_args.json {
+        super::print_json(&report)?;
+    } else {
+        print_summary(file, &report);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// One line of what a flight did (with a second for the disk-page fetch).
+pub fn print_summary(file: &Path, report: &FlightReport) {
+    let s = &report.summary;
+    println!(
+        "{} ({}): {} frames at {} x {}, {:.1} fps, frame {:.2} ms, update {:.2} ms, render {:.2} ms (medians), {:.0} triangles and {:.1} splits + collapses per frame (mean), {:.2}% misses, {} pages read, {} major / {} minor page faults, {} uploaded ({})",
+        file.display(),
+        s.source,
+        s.frames,
+        s.width,
+        s.height,
+        s.fps,
+        s.frame_ms.median,
+        s.update_ms.median,
+        s.render_ms.median,
+        s.triangles.mean,
+        s.splits.mean + s.collapses.mean,
+        s.miss_pct,
+        s.pages_read.total,
+        s.major_faults.total,
+        s.minor_faults.total,
+        fmt_bytes(s.upload_bytes.total as u64),
+        s.adapter
+    );
+    if s.pages_requested.total > 0.0 {
+        println!(
+            "  pages: {:.1} requested per frame (of {:.1} named by the k-d tree), seek {:.1} pages, fetch {:.2} ms (reads {:.2} ms) per frame (means)",
+            s.pages_requested.mean, s.pages_candidate.mean, s.seek_pages.mean, s.update_ms.mean, s.read_ms.mean
+        );
+    }
+}
+
+/// Shows a mesh source as `fly` asks: headless along `flight` when given, else in a window.
+pub fn mesh(
+    source: &mut dyn FrameSource,
+    file: &Path,
+    flight: Option<FlightPath>,
+    up: Option<UpAxis>,
+    tolerance_px: f64,
+    fly_args: &FlyArgs,
+) -> anyhow::Result<ExitCode> {
+    super::check_tolerance(tolerance_px)?;
+    let up = up.unwrap_or_else(|| UpAxis::guess(source.bounds().extent()));
+    let Some(flight) = flight else {
+        let options = MeshWindowOptions {
+            window: fly_args.window()?,
+            tolerance_px,
+            wireframe: fly_args.wireframe,
+            up,
+            source_name: source.describe(),
+        };
+        mesh_window(source, &file.display().to_string(), options)?;
+        return Ok(ExitCode::SUCCESS);
+    };
+    let gpu = if fly_args.no_render { None } else { Some(Gpu::headless()?) };
+    let bounds = source.bounds();
+    let (w, h, style) = (fly_args.width, fly_args.height, relief::render::MeshStyle { wireframe: fly_args.wireframe });
+    headless(source, file, &flight, up, tolerance_px, fly_args, gpu.as_ref(), |gpu| {
+        Ok(Box::new(relief::render::MeshPresenter::new(gpu, bounds, up, w, h, style)?))
+    })
+}
