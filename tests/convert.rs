@@ -261,20 +261,29 @@ fn interrupted_conversion_leaves_old_file_or_new_one() {
     let out = d.join("t.relief");
     convert(&dem("hugo_site_nodata.asc"), &out, &ConvertOptions::new(LayoutKind::Hz)).unwrap();
     let mut old = std::fs::read(&out).unwrap();
-    for delay_ms in [20u64, 80, 200] {
-        let child =
-            relief().args(["convert", "--quiet", "--layout", "interleaved"]).arg(&synth).arg(&out).spawn().unwrap();
+    // Ctrl-C, and what timeout, systemd and docker send (SIGTERM) and a closed terminal (SIGHUP):
+    // each is handled the same way.
+    for (signal, delay_ms) in [(libc::SIGINT, 20u64), (libc::SIGTERM, 80), (libc::SIGHUP, 200), (libc::SIGTERM, 20)] {
+        let child = relief()
+            .args(["convert", "--quiet", "--layout", "interleaved"])
+            .arg(&synth)
+            .arg(&out)
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
         std::thread::sleep(std::time::Duration::from_millis(delay_ms));
-        unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+        unsafe { libc::kill(child.id() as i32, signal) };
         let res = child.wait_with_output().unwrap();
         let now = std::fs::read(&out).unwrap();
         if res.status.success() {
             let f = TerrainFile::open(&out).unwrap();
             assert!(inspect::verify(&f, Progress::hidden()).unwrap().ok);
         } else {
+            assert_eq!(res.status.code(), Some(1), "signal {signal}: killed, not handled");
+            assert_eq!(String::from_utf8_lossy(&res.stderr), "relief: interrupted\n");
             assert_eq!(now, old, "interrupted at {delay_ms} ms but the file changed");
         }
-        assert_eq!(listing(d), vec!["synthetic_2049.tif", "t.relief"], "temporary files left");
+        assert_eq!(listing(d), vec!["synthetic_2049.tif", "t.relief"], "signal {signal}: temporary files left");
         old = now;
     }
 }

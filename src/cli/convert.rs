@@ -66,6 +66,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             bail!("--scratch-dir: {}: no such directory", d.display());
         }
     }
+    if !(a.z_scale.is_finite() && a.z_scale != 0.0) {
+        bail!("--z-scale: expected a finite, non-zero factor, got {}", a.z_scale);
+    }
+    if !a.z_offset.is_finite() {
+        bail!("--z-offset: expected finite metres, got {}", a.z_offset);
+    }
     let mut opts = ConvertOptions::new(a.layout);
     opts.tile = a.tile;
     opts.spacing_m = a.spacing.as_deref().map(parse_spacing).transpose()?;
@@ -74,13 +80,16 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     opts.format = a.format;
     opts.scratch_dir = a.scratch_dir;
     opts.progress = progress(a.quiet);
-    let r = convert(&a.input, &a.output, &opts)?;
+    let r = convert(&a.input, &a.output, &opts).map_err(|e| match e {
+        relief::Error::UnknownFormat { .. } => anyhow::anyhow!("{e} (--format)"),
+        e => e.into(),
+    })?;
     if a.json {
         print_json(&r)?;
         return Ok(ExitCode::SUCCESS);
     }
     if r.spacing_source.starts_with("assumed") {
-        eprintln!("relief: warning: {}: post spacing {}", a.input.display(), r.spacing_source);
+        eprintln!("relief: warning: {}: post spacing {} (--spacing)", a.input.display(), r.spacing_source);
     }
     println!(
         "{} -> {}: {}x{} {} padded to {}², layout {}, {} records, {:.2} s ({:.1} M vertices/s){}",

@@ -12,7 +12,7 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
-    #[error("{}: unknown DEM format ({hint}); pass --format to choose one", path.display())]
+    #[error("{}: unknown DEM format ({hint}); name the format to read it as", path.display())]
     UnknownFormat { path: PathBuf, hint: String },
     #[error("{}: {problem}", path.display())]
     BadDem { path: PathBuf, problem: String },

@@ -55,6 +55,20 @@ pub fn no_display(reason: &str) -> Error {
     ))
 }
 
+/// winit's reason, without the source location it prefixes OS errors with ("os error at
+/// …/winit-0.30.13/src/…/mod.rs:788: Failed to …"), and with the display it tried.
+fn display_error(reason: &str) -> String {
+    let bare = reason
+        .strip_prefix("os error at ")
+        .and_then(|rest| rest.find(".rs:").map(|i| &rest[i + 4..]))
+        .and_then(|rest| rest.split_once(": ").map(|(_, why)| why))
+        .unwrap_or(reason);
+    match std::env::var("DISPLAY") {
+        Ok(d) if !d.is_empty() => format!("{bare} on DISPLAY={d}"),
+        _ => bare.to_string(),
+    }
+}
+
 /// Fails early, with the headless alternative, where no X display is set (Linux, BSD).
 pub fn check_display() -> Result<()> {
     #[cfg(all(unix, not(target_os = "macos")))]
@@ -92,7 +106,7 @@ trait Scene {
 /// Opens a window on `scene` and runs it until it is closed.
 fn run<S: Scene>(scene: S, settings: WindowSettings) -> Result<()> {
     check_display()?;
-    let event_loop = EventLoop::new().map_err(|e| no_display(&e.to_string()))?;
+    let event_loop = EventLoop::new().map_err(|e| no_display(&display_error(&e.to_string())))?;
     let mut app = App { scene, settings, shell: None, error: None };
     event_loop.run_app(&mut app).map_err(|e| Error::Gpu(format!("window event loop: {e}")))?;
     match app.error {
@@ -320,6 +334,12 @@ impl<S: Scene> ApplicationHandler for App<S> {
                 s.cam.speed_mps = (s.cam.speed_mps * 1.25f64.powf(ticks)).clamp(1e-6, 1e7);
             }
             WindowEvent::RedrawRequested => {
+                // Ctrl-C, SIGTERM or SIGHUP: close like Escape, and say why.
+                if let Err(e) = crate::sys::cancel::check() {
+                    self.error = Some(e);
+                    event_loop.exit();
+                    return;
+                }
                 if let Err(e) = s.frame(scene, &self.settings) {
                     self.error = Some(e);
                     event_loop.exit();
@@ -509,6 +529,16 @@ fn timestamp() -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn display_errors_lose_winit_source_locations() {
+        let why = display_error(
+            "os error at /root/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/winit-0.30.13/src/platform_impl/linux/mod.rs:788: Failed to open connection to X server",
+        );
+        assert!(why.starts_with("Failed to open connection to X server"), "{why}");
+        assert!(!why.contains(".cargo") && !why.contains(".rs:"), "{why}");
+        assert!(display_error("no backend").starts_with("no backend"));
+    }
 
     #[test]
     fn fly_camera_keeps_its_heading_about_any_up_axis() {

@@ -512,7 +512,7 @@ pub fn orbit(terrain: &TerrainFile, opts: &OrbitOptions) -> Result<FlightPath> {
     let radius_m = opts.radius_m.unwrap_or(ORBIT_RADIUS_OF_HALF_DIAGONAL * half_diagonal_m);
     if radius_m <= 0.0 {
         return Err(Error::InvalidArgument(format!(
-            "{}: the valid window is a single post; pass --radius",
+            "{}: the valid window is a single post; give the orbit a radius",
             terrain.path().display()
         )));
     }
@@ -596,7 +596,7 @@ pub fn orbit_box(bounds: &Bounds, up: UpAxis, opts: &OrbitOptions) -> Result<Fli
     let b = BoxFrame::new(bounds, up)?;
     let radius_m = opts.radius_m.unwrap_or(ORBIT_BOX_RADIUS_OF_DIAGONAL * b.diagonal_m);
     if radius_m <= 0.0 {
-        return Err(Error::InvalidArgument("the bounding box is a single point; pass --radius".into()));
+        return Err(Error::InvalidArgument("the bounding box is a single point; give the orbit a radius".into()));
     }
     let altitude = opts.altitude_m.unwrap_or(b.centre.dot(b.up) + ORBIT_BOX_ALTITUDE_OF_DIAGONAL * b.diagonal_m);
     let centre_h = DVec2::new(b.centre.dot(b.e1), b.centre.dot(b.e2));

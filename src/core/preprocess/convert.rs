@@ -205,18 +205,9 @@ fn resolve_spacing(
             )
         }
         None => {
-            ([1.0, 1.0], "assumed 1 m (the file does not say; pass --spacing)", FLAG_SPACING_ASSUMED, f64::NAN, nan2)
+            ([1.0, 1.0], "assumed 1 m (the file does not say; set the spacing)", FLAG_SPACING_ASSUMED, f64::NAN, nan2)
         }
     }
-}
-
-fn temp_in(dir: &Path, output: &Path) -> Result<tempfile::NamedTempFile> {
-    let name = output.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    tempfile::Builder::new()
-        .prefix(&format!(".{name}."))
-        .suffix(".tmp")
-        .tempfile_in(dir)
-        .map_err(|e| Error::io(output, e))
 }
 
 /// Where relief keeps terrains it converts on its own (the bundled terrain, `relief layouts`):
@@ -299,13 +290,13 @@ fn convert_source(
 
     if opts.z_scale == 0.0 || !opts.z_scale.is_finite() || !opts.z_offset.is_finite() {
         return Err(Error::InvalidArgument(format!(
-            "--z-scale {} / --z-offset {} must be finite, scale non-zero",
+            "the height scale {} and offset {} must be finite, the scale non-zero",
             opts.z_scale, opts.z_offset
         )));
     }
     if let Some([sx, sy]) = opts.spacing_m {
         if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0) {
-            return Err(Error::InvalidArgument(format!("--spacing must be positive metres, got {sx},{sy}")));
+            return Err(Error::InvalidArgument(format!("post spacing must be positive metres, got {sx},{sy}")));
         }
     }
 
@@ -348,7 +339,7 @@ fn convert_source(
     // Each is at most MAX_MAPPED_BYTES now, so fits in u64.
     let (file_len, z_len, bounds_len) = (file_len as u64, z_len as u64, bounds_len as u64);
     let payload_bytes = file_len - PAYLOAD_OFFSET;
-    let out_tmp = temp_in(&out_dir, output)?;
+    let out_tmp = crate::sys::atomic_file::temp_beside(output)?;
     // The output is written once, sequentially, with positioned writes (no page faults, no
     // zero-filling of fresh pages); blocks of unused index slots are left as holes.
     let out_file = out_tmp.reopen().at(output)?;

@@ -47,7 +47,7 @@ pub struct RefineReport {
     pub refine_ms_min: f64,
     /// Non-degenerate triangles per second of median refinement time, millions.
     pub mtris_per_s: f64,
-    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    /// The mesh check (`--check`): an object of its own, null when not asked for.
     pub check: Option<MeshCheck>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub minimal_triangles: Option<u64>,

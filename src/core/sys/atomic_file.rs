@@ -9,20 +9,30 @@ use std::path::Path;
 
 use crate::error::{Error, Result};
 
-/// Writes `path` with `write`, atomically. The file is an ordinary document: mode 0644 as the
-/// umask allows (tempfile's default, 0600, is meant for secrets).
-pub fn write(path: &Path, write: impl FnOnce(&mut BufWriter<&File>) -> std::io::Result<()>) -> Result<()> {
+/// A temporary file beside `path` (same directory, so the rename stays on one file system),
+/// named `.NAME.XXXXXX.tmp`, to be renamed over `path` once complete. Created with mode 0666
+/// less the umask, as any other new file (tempfile's default, 0600, is meant for secrets).
+pub fn temp_beside(path: &Path) -> Result<tempfile::NamedTempFile> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = tempfile::Builder::new()
+    tempfile::Builder::new()
         .prefix(&format!(".{name}."))
         .suffix(".tmp")
-        .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644))
+        .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666))
         .tempfile_in(dir)
-        .map_err(|e| Error::io(path, e))?;
+        .map_err(|e| Error::io(path, e))
+}
+
+/// Writes `path` with `write`, atomically.
+pub fn write(path: &Path, write: impl FnOnce(&mut BufWriter<&File>) -> std::io::Result<()>) -> Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let tmp = temp_beside(path)?;
     {
         let mut w = BufWriter::new(tmp.as_file());
         write(&mut w).map_err(|e| Error::io(path, e))?;
