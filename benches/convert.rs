@@ -5,10 +5,10 @@
 //! - `checksum`: XXH3 over the payload bytes.
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use relief::format::terrain::{payload_checksum, Record};
-use relief::layout::hierarchy::Grid;
-use relief::preprocess::compute_bounds;
-use relief::preprocess::fill;
+use relief_core::format::terrain::{payload_checksum, Record};
+use relief_core::layout::hierarchy::Grid;
+use relief_core::preprocess::compute_bounds;
+use relief_core::preprocess::fill;
 
 fn synthetic(grid: Grid) -> Vec<Record> {
     let s = grid.size();

@@ -4,8 +4,8 @@
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use relief::layout::hierarchy::{split_children, Grid};
-use relief::layout::{Embedded, Hz, Interleaved, Layout, RowMajor, Tiled, Vertex};
+use relief_core::layout::hierarchy::{split_children, Grid};
+use relief_core::layout::{Embedded, Hz, Interleaved, Layout, RowMajor, Tiled, Vertex};
 
 const N: u32 = 12;
 const SAMPLES: usize = 65536;

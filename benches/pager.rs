@@ -8,13 +8,13 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glam::DVec3;
-use relief::camera::Camera;
-use relief::format::terrain::TerrainFile;
-use relief::layout::LayoutKind;
-use relief::pager::{LruCache, LruTrace, NoTrace, PageGeometry};
-use relief::preprocess::convert::{convert, ConvertOptions};
-use relief::refine::MappedRecords;
-use relief::refine::{RefineOptions, Refiner, Strip};
+use relief_core::camera::Camera;
+use relief_core::format::terrain::TerrainFile;
+use relief_core::layout::LayoutKind;
+use relief_core::pager::{LruCache, LruTrace, NoTrace, PageGeometry};
+use relief_core::preprocess::convert::{convert, ConvertOptions};
+use relief_core::refine::MappedRecords;
+use relief_core::refine::{RefineOptions, Refiner, Strip};
 
 fn bench(c: &mut Criterion) {
     let mut group = c.benchmark_group("pager");
@@ -41,7 +41,7 @@ fn bench(c: &mut Criterion) {
         })
     });
 
-    let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/dem/zurich_25m_i16.tif");
+    let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/dem/zurich_25m_i16.tif");
     let dir = tempfile::tempdir().expect("temp dir");
     let out = dir.path().join("zurich.relief");
     convert(&dem, &out, &ConvertOptions::new(LayoutKind::Interleaved)).expect("convert");

@@ -8,17 +8,17 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use glam::DVec3;
-use relief::camera::{Camera, UpAxis};
-use relief::flight::frame::FrameSource;
-use relief::flight::{orbit_box, OrbitOptions};
-use relief::format::pages::{PageFile, PageLayout};
-use relief::mesh::read_mesh;
-use relief::pages::build::{build_page_file, PageBuildOptions};
-use relief::pages::fetch::{FetchOptions, PageSource};
-use relief::pages::two_factor::{two_factor_order, TwoFactorOptions};
+use relief_core::camera::{Camera, UpAxis};
+use relief_core::diskpages::build::{build_page_file, PageBuildOptions};
+use relief_core::diskpages::fetch::{FetchOptions, PageSource};
+use relief_core::diskpages::two_factor::{two_factor_order, TwoFactorOptions};
+use relief_core::flight::frame::FrameSource;
+use relief_core::flight::{orbit_box, OrbitOptions};
+use relief_core::format::pagefile::{PageFile, PageLayout};
+use relief_core::mesh::read_mesh;
 
 fn bench(c: &mut Criterion) {
-    let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/mesh/bunny.off");
+    let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/mesh/bunny.off");
     let mesh = read_mesh(&bunny).expect("the bunny in ../shared/data/mesh");
     let dir = tempfile::tempdir().expect("a temporary directory");
     let mut group = c.benchmark_group("pages");

@@ -1,4 +1,4 @@
-//! The buffer pool's costs (`relief::pager::pool`; El-Sana & Chiang §3.3.3–3.3.4), with 4 KiB blocks
+//! The buffer pool's costs (`relief_core::pager::pool`; El-Sana & Chiang §3.3.3–3.3.4), with 4 KiB blocks
 //! whose "read" is a fill (so the figures are the pool's own overhead, not a disk's):
 //! - the navigation hot path on blocks in real memory: `get`, a usage count raised and dropped,
 //!   a reference count raised and dropped, and a second chance (a released block taken back);
@@ -9,8 +9,8 @@
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use relief::pager::pool::{BlockLoader, BufferPool};
-use relief::Result;
+use relief_core::pager::pool::{BlockLoader, BufferPool};
+use relief_core::Result;
 
 const BLOCK_BYTES: usize = 4096;
 

@@ -10,11 +10,11 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use glam::DVec3;
-use relief::camera::Camera;
-use relief::format::terrain::TerrainFile;
-use relief::layout::LayoutKind;
-use relief::preprocess::convert::{convert, ConvertOptions};
-use relief::refine::{RefineOptions, Refiner, Strip};
+use relief_core::camera::Camera;
+use relief_core::format::terrain::TerrainFile;
+use relief_core::layout::LayoutKind;
+use relief_core::preprocess::convert::{convert, ConvertOptions};
+use relief_core::refine::{RefineOptions, Refiner, Strip};
 
 /// A low oblique view from the south edge across the terrain, 1920 × 1080, 60°.
 fn view(file: &TerrainFile) -> Camera {
@@ -50,7 +50,7 @@ fn refine(c: &mut Criterion) {
         bench_file(c, "refine-file", &file);
         return;
     }
-    let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/dem/zurich_25m_i16.tif");
+    let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/dem/zurich_25m_i16.tif");
     let dir = tempfile::tempdir().expect("temp dir");
     for kind in LayoutKind::ALL {
         let out = dir.path().join(format!("zurich.{kind}.relief"));

@@ -111,15 +111,15 @@ def table(inputs, work):
                 warm[layout].append(fly(name, layout, path, work, "--no-render"))
                 cold[layout].append(fly(name, layout, path, work, "--no-render", "--cold-frames"))
         (work / f"{name}_results.json").write_text(json.dumps({"builds": builds, "warm": warm, "cold": cold}))
-        cold_ms = {l: med([s["fetch_ms_mean"] for s in cold[l]]) for l in LAYOUTS}
+        cold_ms = {l: med([s["update_ms"]["mean"] for s in cold[l]]) for l in LAYOUTS}
         for layout in LAYOUTS:
             b, w, c = builds[layout], warm[layout], cold[layout]
-            pf = lambda runs, k: med([s[k] for s in runs])
+            pf = lambda runs, k: med([s[k]['mean'] for s in runs])
             build_s = (b["layout_ms"] + b["write_ms"]) / 1000
             print(f"| {NAMES[name]} | {layout} | {b['triangles']:,} | {b['pages']:,} ({b['file_bytes'] / 2**20:.1f}) "
-                  f"| {build_s:.1f} | {pf(c, 'pages_mean'):,.0f} | {pf(c, 'seek_pages_mean'):,.0f} "
-                  f"| {med([s['triangles_mean'] for s in c]):,.0f} | {pf(w, 'fetch_ms_mean'):.2f} "
-                  f"| {cold_ms[layout]:.2f} | {pf(c, 'read_ms_mean'):.2f} | {1000 / cold_ms[layout]:,.0f} "
+                  f"| {build_s:.1f} | {pf(c, 'pages_requested'):,.0f} | {pf(c, 'seek_pages'):,.0f} "
+                  f"| {med([s['triangles']['mean'] for s in c]):,.0f} | {pf(w, 'update_ms'):.2f} "
+                  f"| {cold_ms[layout]:.2f} | {pf(c, 'read_ms'):.2f} | {1000 / cold_ms[layout]:,.0f} "
                   f"| {cold_ms['raster'] / cold_ms[layout]:.1f}× |", flush=True)
 
 
@@ -136,8 +136,8 @@ def cap(inputs, work):
         for _ in range(args.rounds):
             for layout in LAYOUTS:
                 s = fly(name, layout, path, work, "--no-render", "--cold", "--cap", str(caps[layout]))
-                fetch.setdefault(layout, []).append(s["fetch_ms_mean"])
-                reads.setdefault(layout, []).append(s["read_ms_mean"])
+                fetch.setdefault(layout, []).append(s["update_ms"]["mean"])
+                reads.setdefault(layout, []).append(s["read_ms"]["mean"])
         for layout in LAYOUTS:
             print(f"| {NAMES[name]} | {layout} | {caps[layout] / 2**20:.0f} MiB "
                   f"| {', '.join(f'{x:.1f}' for x in fetch[layout])} | {', '.join(f'{x:.1f}' for x in reads[layout])} "
@@ -151,8 +151,8 @@ def render(inputs, work):
         _, path = prepare(name, work, rebuild=False)
         for layout in LAYOUTS:
             s = fly(name, layout, path, work, "--width", "640", "--height", "360")
-            print(f"| {NAMES[name]} | {layout} | {s['fetch_ms_mean']:.2f} | {s['render_ms_median']:.1f} "
-                  f"| {s['frame_ms_median']:.1f} | {s['fps']:.1f} |", flush=True)
+            print(f"| {NAMES[name]} | {layout} | {s['update_ms']['mean']:.2f} | {s['render_ms']['median']:.1f} "
+                  f"| {s['frame_ms']['median']:.1f} | {s['fps']:.1f} |", flush=True)
 
 
 if __name__ == "__main__":

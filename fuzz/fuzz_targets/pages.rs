@@ -9,8 +9,8 @@ use libfuzzer_sys::fuzz_target;
 mod common;
 
 use relief_core::flight::frame::FrameSource;
-use relief_core::pages::fetch::{FetchOptions, PageSource};
-use relief_core::format::pages::PageFile;
+use relief_core::diskpages::fetch::{FetchOptions, PageSource};
+use relief_core::format::pagefile::PageFile;
 
 fuzz_target!(|data: &[u8]| {
     let (_dir, path) = common::input_file("in.rpg", &stamp(data));
@@ -36,7 +36,7 @@ fuzz_target!(|data: &[u8]| {
     }
 });
 
-fn walk(view: relief_core::Result<relief_core::format::pages::PageView<'_>>) {
+fn walk(view: relief_core::Result<relief_core::format::pagefile::PageView<'_>>) {
     if let Ok(v) = view {
         let mut out = Vec::new();
         v.append_triangles(&mut out);

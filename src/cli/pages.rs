@@ -6,11 +6,11 @@ use std::process::ExitCode;
 use anyhow::bail;
 use clap::builder::PossibleValuesParser;
 use clap::Subcommand;
-use relief::format::pages::{PageFile, PageLayout};
+use relief::diskpages::build::{build_page_file, PageBuildOptions};
+use relief::diskpages::fetch::{FetchOptions, PageSource};
+use relief::format::pagefile::{PageFile, PageLayout};
 use relief::format::{sniff, FileKind};
 use relief::pager::{Access, MemoryCap};
-use relief::pages::build::{build_page_file, PageBuildOptions};
-use relief::pages::fetch::{FetchOptions, PageSource};
 
 use super::{check_output_file, fmt_bytes, parse_bytes, print_json, progress, AccessArgs, FlyArgs};
 

@@ -38,10 +38,10 @@ pub enum Error {
     /// A mesh file (`mesh::read_mesh`) that could not be parsed or holds unusable data.
     #[error("{}: {problem}", path.display())]
     BadMesh { path: PathBuf, problem: String },
-    /// A memory budget too small for the step that needs it (`vdtree::build`).
+    /// A memory budget too small for the step that needs it (`metanode::build`).
     #[error("memory budget of {budget_bytes} bytes is too small: {problem}")]
     MemoryBudget { budget_bytes: u64, problem: String },
-    /// Scratch storage (the redb database of `vdtree::build`) failed.
+    /// Scratch storage (the redb database of `metanode::build`) failed.
     #[error("{}: scratch database: {problem}", path.display())]
     Scratch { path: PathBuf, problem: String },
     /// A page layout (`pages::two_factor`) that could not be computed.

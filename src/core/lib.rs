@@ -12,6 +12,7 @@ compile_error!("relief's terrain files are little-endian and mapped in place; bi
 
 pub mod camera;
 pub mod dem;
+pub mod diskpages;
 pub mod error;
 pub mod faults;
 pub mod flight;
@@ -21,7 +22,6 @@ pub mod lod;
 pub mod mesh;
 pub mod metanode;
 pub mod pager;
-pub mod pages;
 pub mod preprocess;
 pub mod refine;
 pub mod sys;

@@ -672,7 +672,7 @@ impl PathSubject {
                 PathSubject::Terrain(TerrainFile::open(path)?)
             }
             Some(FileKind::Pages) => {
-                let b = crate::format::pages::PageFile::open(path)?.header().bounds;
+                let b = crate::format::pagefile::PageFile::open(path)?.header().bounds;
                 PathSubject::Box(b, guess(&b))
             }
             Some(FileKind::MetaNode) => {

@@ -19,7 +19,7 @@
 //! - [`terrain`]: vertex records (height, nested error, bounding radius) in an index layout;
 //! - [`vdt`]: a view-dependence forest (the meta-node build's intermediate file);
 //! - [`metanode`]: meta-node trees blocked into disk pages (DATA + MNT);
-//! - [`pages`]: self-contained disk pages with their directory and k-d tree.
+//! - [`pagefile`]: self-contained disk pages with their directory and k-d tree.
 
 use std::path::Path;
 
@@ -29,7 +29,7 @@ use crate::error::{Error, Result};
 use crate::pager::source::Source;
 
 pub mod metanode;
-pub mod pages;
+pub mod pagefile;
 pub mod terrain;
 pub mod vdt;
 
@@ -77,7 +77,7 @@ impl FileKind {
             FileKind::Terrain => terrain::VERSION,
             FileKind::Vdt => vdt::VERSION,
             FileKind::MetaNode => metanode::VERSION,
-            FileKind::Pages => pages::VERSION,
+            FileKind::Pages => pagefile::VERSION,
         }
     }
 

@@ -1,5 +1,5 @@
 //! View-dependence trees and meta-node trees for general meshes, out of core (El-Sana & Chiang,
-//! *External Memory View-Dependent Simplification*, Eurographics 2000; DESIGN.md "Meta-node trees").
+//! *External Memory View-Dependent Simplification*, Eurographics 2000; ARCHITECTURE.md, "Meta-node trees").
 //!
 //! Pipeline (`relief mesh build`):
 //! 1. [`build`]: spanned sub-mesh simplification. Edges live in a redb B-tree keyed by the

@@ -19,8 +19,8 @@ pub fn drop_from_page_cache(path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// A cgroup v1 memory limit on this process while the value lives (DESIGN.md: OS counts "under
-/// a cgroup memory limit where the machine allows one"). Charges made before the move stay where
+/// A cgroup v1 memory limit on this process while the value lives, so that a cold run's page
+/// cache is about as small as the model's. Charges made before the move stay where
 /// they were (v1 does not move them by default), so the limit applies to what is allocated and
 /// paged in afterwards: chiefly the page cache of the file a cold run maps.
 pub struct MemoryCap {

@@ -1,4 +1,4 @@
-//! The pager's **pooled** mode (DESIGN.md, "The pager"): El-Sana & Chiang, *External Memory
+//! The pager's **pooled** mode (see [`super`]): El-Sana & Chiang, *External Memory
 //! View-Dependent Simplification* (Eurographics 2000), §3.3.2–3.3.4, the "Ext." column of their
 //! tables.
 //!

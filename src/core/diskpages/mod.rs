@@ -6,9 +6,11 @@
 //! - [`matching`]: minimum-weight perfect matching (Edmonds' blossom algorithm).
 //! - [`two_factor`]: the 2-factor layout (Sajadi et al. §6).
 //! - [`hilbert`]: 3D Hilbert order of triangle centroids; raster is the input order.
-//! - [`file`]: the page file (pages, directory, k-d tree) and its validated reader.
+//! - [`build`]: the pages filled in layout order and written as a page file (the format and its
+//!   reader are [`crate::format::pagefile`]).
 //! - [`kdtree`]: the disk-page k-d tree and the box / normal-cone culling.
-//! - [`fetch`]: the per-frame fetch as a [`crate::flight::frame::MeshFrameSource`].
+//! - [`fetch`]: the per-frame fetch through the page file's pager, as a
+//!   [`crate::flight::frame::FrameSource`].
 
 pub mod build;
 pub mod fetch;

@@ -2,7 +2,7 @@
 //! real DEMs, and per-frame upload sizes. Runs on any Vulkan adapter; CI uses Mesa's lavapipe
 //! (installed by tools/test.sh). Regenerate the golden images with `RELIEF_BLESS=1`.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock};

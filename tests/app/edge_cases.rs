@@ -6,7 +6,7 @@
 //! the index type allows, are refused before anything is allocated. Inputs are ESRI ASCII grids
 //! written here (small, exact, readable).
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

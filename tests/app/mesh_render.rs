@@ -4,7 +4,7 @@
 //! Xvfb. The WGSL itself is validated with every other shader in tests/render.rs. Regenerate the
 //! golden images with `RELIEF_BLESS=1`.
 
-mod common;
+use crate::common;
 
 use common::{check_golden, compare, gpu, mesh, relief, stderr_of, window_session};
 use glam::DVec3;

@@ -1,7 +1,7 @@
 //! End-to-end conversion of the real DEMs in ../shared/data/dem into every layout, with `info` and
 //! `verify` agreeing, and the file-level guarantees (atomic output, exact errors for bad input).
 
-mod common;
+use crate::common;
 
 use common::{dem, REAL_DEMS};
 use std::path::Path;

@@ -1,4 +1,4 @@
-//! `relief mesh build` (`vdtree::build`): the out-of-core VDT build on the real meshes in
+//! `relief mesh build` (`metanode::build`): the out-of-core VDT build on the real meshes in
 //! ../shared/data/mesh.
 //!
 //! - Global shortest-first order: an independent replay of the file's collapses, in id order,

@@ -20,7 +20,7 @@ use glam::DVec3;
 
 use crate::camera::PLANES;
 
-pub use crate::format::pages::{KdNode, PageBounds, LEAF};
+pub use crate::format::pagefile::{KdNode, PageBounds, LEAF};
 
 /// A node with at most this many pages is a leaf.
 pub const LEAF_PAGES: usize = 4;

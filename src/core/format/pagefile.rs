@@ -1,7 +1,7 @@
-//! The page file (Sajadi et al. 2009, §3, Figure 2), written by [`crate::pages::build`]: a triangle soup as a sequence of
+//! The page file (Sajadi et al. 2009, §3, Figure 2), written by [`crate::diskpages::build`]: a triangle soup as a sequence of
 //! self-contained fixed-size pages, each holding whole triangles and copies of the vertices they
 //! use, with a directory (bounding box and normal cone per page) and the disk-page k-d tree
-//! ([`crate::pages::kdtree`]) stored before the pages.
+//! ([`crate::diskpages::kdtree`]) stored before the pages.
 //!
 //! # Page file (little-endian)
 //! ```text
@@ -61,10 +61,10 @@ pub const DEFAULT_COLOUR: [u8; 4] = [200, 200, 200, 255];
 pub enum PageLayout {
     /// Input order.
     Raster,
-    /// Hierarchical 2-factor order ([`crate::pages::two_factor`]).
+    /// Hierarchical 2-factor order ([`crate::diskpages::two_factor`]).
     #[serde(rename = "2factor")]
     TwoFactor,
-    /// 3D Hilbert order of centroids ([`crate::pages::hilbert`]).
+    /// 3D Hilbert order of centroids ([`crate::diskpages::hilbert`]).
     Hilbert,
 }
 
@@ -101,7 +101,7 @@ pub fn page_size(vertices: usize, triangles: usize) -> usize {
 /// `axis` of a leaf k-d node.
 pub const LEAF: u32 = 3;
 
-/// One node of the disk-page k-d tree ([`crate::pages::kdtree`]; 40 bytes on disk, little-endian).
+/// One node of the disk-page k-d tree ([`crate::diskpages::kdtree`]; 40 bytes on disk, little-endian).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct KdNode {

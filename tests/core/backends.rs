@@ -3,29 +3,29 @@
 //! protocol, and the frames are identical (the same strip, the same triangles). The pager's
 //! observer sees what each access reads.
 
-mod common;
+use crate::common;
 
 use std::sync::Arc;
 
-use relief::camera::{Camera, UpAxis};
-use relief::flight::frame::{Frame, FrameSource};
-use relief::flight::terrain::TerrainSource;
-use relief::flight::{flyover, orbit_box, FlyoverOptions, OrbitOptions};
-use relief::format::metanode::MetaNodeFile;
-use relief::format::pages::{PageFile, PageLayout};
-use relief::format::terrain::TerrainFile;
-use relief::layout::LayoutKind;
-use relief::mesh::read_mesh;
-use relief::metanode::blocking::BlockingOptions;
-use relief::metanode::build::BuildOptions;
-use relief::metanode::navigate::{NavOptions, Navigator, PagedStore, Prefetch};
-use relief::metanode::source::NavSource;
-use relief::metanode::VdtMetric;
-use relief::pager::{Access, LruCache, LruTrace, PageGeometry};
-use relief::pages::build::{build_page_file, PageBuildOptions};
-use relief::pages::fetch::{FetchOptions, PageSource};
-use relief::preprocess::convert::{convert, ConvertOptions};
-use relief::refine::RefineOptions;
+use relief_core::camera::{Camera, UpAxis};
+use relief_core::diskpages::build::{build_page_file, PageBuildOptions};
+use relief_core::diskpages::fetch::{FetchOptions, PageSource};
+use relief_core::flight::frame::{Frame, FrameSource};
+use relief_core::flight::terrain::TerrainSource;
+use relief_core::flight::{flyover, orbit_box, FlyoverOptions, OrbitOptions};
+use relief_core::format::metanode::MetaNodeFile;
+use relief_core::format::pagefile::{PageFile, PageLayout};
+use relief_core::format::terrain::TerrainFile;
+use relief_core::layout::LayoutKind;
+use relief_core::mesh::read_mesh;
+use relief_core::metanode::blocking::BlockingOptions;
+use relief_core::metanode::build::BuildOptions;
+use relief_core::metanode::navigate::{NavOptions, Navigator, PagedStore, Prefetch};
+use relief_core::metanode::source::NavSource;
+use relief_core::metanode::VdtMetric;
+use relief_core::pager::{Access, LruCache, LruTrace, PageGeometry};
+use relief_core::preprocess::convert::{convert, ConvertOptions};
+use relief_core::refine::RefineOptions;
 
 /// What a frame drew, comparable across accesses: a strip's vertices, or a mesh's triangles as
 /// their corners' bits.
@@ -52,7 +52,7 @@ fn drawn(frame: Frame<'_>, sort: bool) -> Drawn {
 const ACCESSES: [Access; 3] = [Access::Map, Access::Read, Access::Pool { bytes: 1 << 20 }];
 
 /// An observer on the pager that must see reads (misses of a small model) whatever the access.
-fn observe(pager: &relief::pager::Pager) -> Arc<LruTrace> {
+fn observe(pager: &relief_core::pager::Pager) -> Arc<LruTrace> {
     let g = PageGeometry::new(4096).unwrap();
     let trace = Arc::new(LruTrace::new(LruCache::with_pages(16), g));
     pager.observe(trace.clone()).unwrap();
@@ -99,7 +99,7 @@ fn meta_node_trees_navigate_to_the_same_triangles_through_every_access() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("bunny.rmn");
     let mesh = read_mesh(&common::mesh("bunny.off")).unwrap();
-    relief::metanode::build_tree(
+    relief_core::metanode::build_tree(
         mesh,
         &out,
         None,

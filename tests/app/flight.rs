@@ -4,7 +4,7 @@
 //! about a mesh's bounding box (bunny.off): the orbit stays outside the box looking at its centre,
 //! the fly-over crosses above it.
 
-mod common;
+use crate::common;
 
 use common::{dem, mesh, REAL_DEMS};
 use std::path::{Path, PathBuf};

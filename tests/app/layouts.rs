@@ -2,7 +2,7 @@
 //! is the plain one, counts are deterministic, hierarchical layouts fault less than row-major,
 //! re-laying out a terrain file equals converting its DEM, and bad input fails in one line.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 use std::process::Command;

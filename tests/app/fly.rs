@@ -1,7 +1,7 @@
 //! Flying: headless fly-throughs along real paths (frames, stats, both refinement modes), the
 //! `render` and `fly` command lines and their errors, and the window under Xvfb where available.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

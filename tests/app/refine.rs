@@ -3,7 +3,7 @@
 //! the same strip, the mesh shrinks as τ grows, culling only removes, threads change nothing, and
 //! geomorphing does not pop.
 
-mod common;
+use crate::common;
 
 use common::crack::{
     check, convert_all, crack_free_everywhere, inserted, random_camera, random_options, vertex_set, Rng,

@@ -1,7 +1,7 @@
 //! Inputs the fuzzers (`tools/fuzz.sh`) found crashing a reader, kept as regression tests: each
 //! must now give a clean error or a well-formed value, never a panic.
 
-mod common;
+use crate::common;
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;

@@ -2,7 +2,7 @@
 //! path, the navigation's bookkeeping and foldovers on random views, the buffer pool under a tiny
 //! K, and the `relief mesh build | fly` commands.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 

@@ -1,12 +1,12 @@
 //! DEM readers: the real files in `../shared/data/dem`, fixtures written here for every format and
 //! sample type, and malformed input (which must give an error naming the file, never a panic).
 
-mod common;
+use crate::common;
 
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
-use relief::dem::{self, DemFormat, DemInfo, SourceSpacing};
+use relief_core::dem::{self, DemFormat, DemInfo, SourceSpacing};
 
 fn data(name: &str) -> PathBuf {
     common::dem(name)
@@ -681,7 +681,7 @@ fn exr_f32_f16_u32_scanlines_and_tiles() {
     for (name, channels, encoding, sample_type) in cases {
         let path = dir.path().join(name);
         write_exr(&path, w, h, channels, encoding);
-        let g = crate::read(&path, None);
+        let g = crate::dem_readers::read(&path, None);
         assert_eq!(g.info.format, DemFormat::Exr, "{name}");
         assert_eq!((g.info.width, g.info.height), (w as u32, h as u32), "{name}");
         assert_eq!(g.info.sample_type, sample_type, "{name}");
@@ -812,7 +812,7 @@ fn unknown_empty_and_missing_files() {
 
     let missing = dir.path().join("missing.tif");
     match dem::open(&missing, None) {
-        Err(e @ relief::Error::Io { .. }) => assert!(e.to_string().contains("missing.tif")),
+        Err(e @ relief_core::Error::Io { .. }) => assert!(e.to_string().contains("missing.tif")),
         Err(e) => panic!("wrong error {e}"),
         Ok(_) => panic!("opened a missing file"),
     }

@@ -1,17 +1,17 @@
-//! The one container every relief file format shares (`relief::format`): per format, the golden
+//! The one container every relief file format shares (`relief_core::format`): per format, the golden
 //! bytes of a header (any change to an on-disk format must change these, and its version, on
 //! purpose), the header decoding back to itself, and every malformation the container and the
 //! format refuse, each as one line naming the file and the format.
 
 use std::path::Path;
 
-use relief::format::metanode::MetaHeader;
-use relief::format::pages::{PageHeader, PageLayout};
-use relief::format::terrain::{Header, PAYLOAD_OFFSET, RECORD_BYTES, RECORD_FORMAT_F32};
-use relief::format::vdt::{VdtHeader, VdtMetric};
-use relief::format::{decode_header, FileKind, Format, HeaderBytes, Problem};
-use relief::layout::LayoutKind;
-use relief::mesh::Bounds;
+use relief_core::format::metanode::MetaHeader;
+use relief_core::format::pagefile::{PageHeader, PageLayout};
+use relief_core::format::terrain::{Header, PAYLOAD_OFFSET, RECORD_BYTES, RECORD_FORMAT_F32};
+use relief_core::format::vdt::{VdtHeader, VdtMetric};
+use relief_core::format::{decode_header, FileKind, Format, HeaderBytes, Problem};
+use relief_core::layout::LayoutKind;
+use relief_core::mesh::Bounds;
 
 fn hex(b: &[u8]) -> String {
     b.iter().map(|x| format!("{x:02x}")).collect()
@@ -20,7 +20,7 @@ fn hex(b: &[u8]) -> String {
 fn terrain_header() -> Header {
     // A 9 × 9 grid (n = 3) in the interleaved layout: 4 + 5·(4³ − 1)/3 = 109 records.
     Header {
-        version: relief::format::terrain::VERSION,
+        version: relief_core::format::terrain::VERSION,
         layout: LayoutKind::Interleaved,
         layout_param: 0,
         record_format: RECORD_FORMAT_F32,
@@ -125,11 +125,11 @@ fn container_checks<F: Format + std::fmt::Debug + PartialEq>(good: &F, name: &st
     assert_eq!(&decoded, good, "{kind}: decodes back");
     assert_eq!(decoded.encode().0, bytes, "{kind}: encodes to the same bytes");
     let problem = |b: &[u8], len: u64| match decode_header::<F>(path, b, len) {
-        Err(e @ relief::Error::File { .. }) => {
+        Err(e @ relief_core::Error::File { .. }) => {
             let msg = e.to_string();
             assert!(msg.starts_with(&format!("{name}: ")) && !msg.contains('\n'), "{msg}");
             assert!(msg.contains(kind.name()), "{msg} does not name the {kind}");
-            let relief::Error::File { kind: k, problem, .. } = e else { unreachable!() };
+            let relief_core::Error::File { kind: k, problem, .. } = e else { unreachable!() };
             assert_eq!(k, kind);
             problem
         }

@@ -1,5 +1,5 @@
 //! Writing a page file (Sajadi et al. 2009, §3): a triangle soup laid out in a layout order and
-//! filled greedily into self-contained fixed-size pages; the format is [`crate::format::pages`].
+//! filled greedily into self-contained fixed-size pages; the format is [`crate::format::pagefile`].
 //!
 //! Pages are filled greedily in layout order: a triangle goes into the current page when the page
 //! still fits it with its new vertices, else the page is closed and a new one begun. Every
@@ -15,7 +15,7 @@ use super::hilbert::{hilbert_order, raster_order};
 use super::kdtree::{build_kdtree, PageBounds};
 use super::two_factor::{two_factor_order, TwoFactorOptions};
 use crate::error::{Error, Result};
-use crate::format::pages::{
+use crate::format::pagefile::{
     page_size, PageHeader, PageLayout, DEFAULT_COLOUR, ENTRY_BYTES, HEADER_BYTES, KD_NODE_BYTES, MAX_PAGE_BYTES,
     MIN_PAGE_BYTES, PAGE_HEADER_BYTES, VERTEX_BYTES,
 };
@@ -310,7 +310,7 @@ impl Filled {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::format::pages::PageFile;
+    use crate::format::pagefile::PageFile;
     use crate::pager::Access;
 
     /// A 40 × 40 grid of quads (3,200 triangles) on a wavy surface.

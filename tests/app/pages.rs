@@ -4,22 +4,22 @@
 //! force); the 2-factor and Hilbert layouts need fewer pages and shorter seeks than the input
 //! order; and the `relief pages build | fly` commands, their JSON and their errors.
 
-mod common;
+use crate::common;
 
 use std::collections::HashSet;
 use std::path::Path;
 
 use glam::DVec3;
 use relief::camera::{Camera, UpAxis};
+use relief::diskpages::build::{build_page_file, PageBuildOptions};
+use relief::diskpages::fetch::{FetchOptions, PageSource};
+use relief::diskpages::kdtree::{box_in_frustum, query_frustum};
 use relief::flight::frame::FrameSource;
 use relief::flight::{flyover_box, FlyoverOptions};
-use relief::format::pages::{PageFile, PageLayout};
+use relief::format::pagefile::{PageFile, PageLayout};
 use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::mesh::{read_mesh, terrain_mesh, Mesh};
-use relief::pages::build::{build_page_file, PageBuildOptions};
-use relief::pages::fetch::{FetchOptions, PageSource};
-use relief::pages::kdtree::{box_in_frustum, query_frustum};
 use relief::preprocess::convert::{convert, ConvertOptions};
 
 /// Every triangle as its three corners' f32 bits, in winding order.

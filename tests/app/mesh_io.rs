@@ -1,8 +1,6 @@
 //! Mesh input (`relief::mesh`): the real meshes in ../shared/data/mesh, every format round trip,
 //! terrain export, and the one-line errors for malformed files.
 
-mod common;
-
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::Command;

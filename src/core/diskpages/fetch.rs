@@ -18,7 +18,7 @@ use super::kdtree::{back_facing, box_in_frustum, query_frustum};
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::flight::frame::{Frame, FrameSource, FrameStats};
-use crate::format::pages::PageFile;
+use crate::format::pagefile::PageFile;
 use crate::mesh::Bounds;
 use crate::pager::{BlockBuf, ReadStats};
 
