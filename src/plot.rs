@@ -310,6 +310,60 @@ fn draw_tolerance_panel(area: &Area<'_>, series: &[ToleranceSeries], taus: &[f64
     Ok(())
 }
 
+/// The label of a run in the figures: the terrain's layout name (which picks its fixed colour), or
+/// the backend and its layout or access.
+fn run_label(r: &crate::faults::FaultRun) -> String {
+    match r.backend {
+        crate::faults::Backend::Terrain => r.layout.clone(),
+        b => format!("{} {}", b.name(), r.layout),
+    }
+}
+
+/// Draws the paper's two figures for `report` into `out` (PNG): cumulative faults per frame at the
+/// smallest τ, and total faults against τ, one line per backend and layout.
+pub fn plot_report(report: &crate::faults::LayoutsReport, out: &Path) -> Result<()> {
+    let first_tau = report.runs.iter().map(|r| r.tolerance).fold(f64::INFINITY, f64::min);
+    let mut labels: Vec<String> = Vec::new();
+    for r in &report.runs {
+        if !labels.contains(&run_label(r)) {
+            labels.push(run_label(r));
+        }
+    }
+    let frames: Vec<FrameSeries> = labels
+        .iter()
+        .filter_map(|l| report.runs.iter().find(|r| run_label(r) == *l && r.tolerance == first_tau))
+        .map(|r| FrameSeries {
+            label: run_label(r),
+            cumulative_faults: r
+                .faults_per_frame
+                .iter()
+                .scan(0u64, |sum, f| {
+                    *sum += f;
+                    Some(*sum)
+                })
+                .collect(),
+        })
+        .collect();
+    let by_tolerance: Vec<ToleranceSeries> = labels
+        .iter()
+        .map(|l| ToleranceSeries {
+            label: l.clone(),
+            points: report.runs.iter().filter(|r| run_label(r) == *l).map(|r| (r.tolerance, r.faults)).collect(),
+        })
+        .collect();
+    let name = Path::new(&report.input).file_name().map_or(report.input.clone(), |n| n.to_string_lossy().into_owned());
+    let title = format!(
+        "{name}: {} frames, LRU cache {:.1} MiB of {} B pages",
+        report.frames,
+        report.memory_bytes as f64 / 1048576.0,
+        report.page_bytes
+    );
+    write_layouts_figure(
+        out,
+        &Figure { title: &title, frames: &frames, by_tolerance: &by_tolerance, frames_tolerance_px: first_tau },
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -465,58 +519,4 @@ mod tests {
         assert_eq!(log_axis_top(400), 1000.0);
         assert_eq!(log_axis_top(600), 10000.0);
     }
-}
-
-/// The label of a run in the figures: the terrain's layout name (which picks its fixed colour), or
-/// the backend and its layout or access.
-fn run_label(r: &crate::faults::FaultRun) -> String {
-    match r.backend {
-        crate::faults::Backend::Terrain => r.layout.clone(),
-        b => format!("{} {}", b.name(), r.layout),
-    }
-}
-
-/// Draws the paper's two figures for `report` into `out` (PNG): cumulative faults per frame at the
-/// smallest τ, and total faults against τ, one line per backend and layout.
-pub fn plot_report(report: &crate::faults::LayoutsReport, out: &Path) -> Result<()> {
-    let first_tau = report.runs.iter().map(|r| r.tolerance).fold(f64::INFINITY, f64::min);
-    let mut labels: Vec<String> = Vec::new();
-    for r in &report.runs {
-        if !labels.contains(&run_label(r)) {
-            labels.push(run_label(r));
-        }
-    }
-    let frames: Vec<FrameSeries> = labels
-        .iter()
-        .filter_map(|l| report.runs.iter().find(|r| run_label(r) == *l && r.tolerance == first_tau))
-        .map(|r| FrameSeries {
-            label: run_label(r),
-            cumulative_faults: r
-                .faults_per_frame
-                .iter()
-                .scan(0u64, |sum, f| {
-                    *sum += f;
-                    Some(*sum)
-                })
-                .collect(),
-        })
-        .collect();
-    let by_tolerance: Vec<ToleranceSeries> = labels
-        .iter()
-        .map(|l| ToleranceSeries {
-            label: l.clone(),
-            points: report.runs.iter().filter(|r| run_label(r) == *l).map(|r| (r.tolerance, r.faults)).collect(),
-        })
-        .collect();
-    let name = Path::new(&report.input).file_name().map_or(report.input.clone(), |n| n.to_string_lossy().into_owned());
-    let title = format!(
-        "{name}: {} frames, LRU cache {:.1} MiB of {} B pages",
-        report.frames,
-        report.memory_bytes as f64 / 1048576.0,
-        report.page_bytes
-    );
-    write_layouts_figure(
-        out,
-        &Figure { title: &title, frames: &frames, by_tolerance: &by_tolerance, frames_tolerance_px: first_tau },
-    )
 }

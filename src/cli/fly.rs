@@ -5,6 +5,7 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use relief::camera::UpAxis;
+use relief::flight::frame::Presenter;
 use relief::flight::terrain::TerrainSource;
 use relief::format::terrain::{TerrainFile, RECORD_BYTES};
 use relief::pager::Access;
@@ -63,7 +64,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let mut source = TerrainSource::new(terrain.clone(), refine, a.refine.threads, threaded)?;
     let gpu = if a.fly.no_render { None } else { Some(Gpu::headless()?) };
     let (w, h, style, quiet) = (a.fly.width, a.fly.height, DrawStyle { wireframe: a.fly.wireframe }, a.fly.quiet);
-    super::show::headless(&mut source, &file, &flight, UpAxis::Z, refine.tolerance_px, &a.fly, gpu.as_ref(), |gpu| {
-        Ok(Box::new(TerrainPresenter::new(gpu, terrain, w, h, style, progress(quiet))?))
-    })
+    let presenter: Option<Box<dyn Presenter + '_>> = match &gpu {
+        Some(gpu) => Some(Box::new(TerrainPresenter::new(gpu, terrain, w, h, style, progress(quiet))?)),
+        None => None,
+    };
+    super::show::headless(&mut source, &file, &flight, (UpAxis::Z, refine.tolerance_px), &a.fly, presenter)
 }

@@ -18,6 +18,8 @@ use relief::pager::{Access, MemoryCap};
 
 use super::{check_output_file, fmt_bytes, parse_bytes, parse_memory, print_json, progress, up_parser, FlyArgs};
 
+// One value, parsed once: the variants' size does not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand)]
 pub enum Command {
     /// Show a whole mesh (OFF, PLY, OBJ, optionally gzip'd; no simplification): in a window, or

@@ -14,6 +14,8 @@ use relief::pager::{Access, MemoryCap};
 
 use super::{check_output_file, fmt_bytes, parse_bytes, print_json, progress, AccessArgs, FlyArgs};
 
+// One value, parsed once: the variants' size does not matter.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand)]
 pub enum Command {
     /// Write a mesh (OFF, PLY, OBJ, optionally gzip'd) or a terrain file (.relief, as the mesh of

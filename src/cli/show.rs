@@ -25,15 +25,14 @@ pub fn cameras(flight: &FlightPath, file: &Path, up: UpAxis, fly: &FlyArgs) -> a
 
 /// Flies `source` along `flight` headless, drawing with what `presenter` makes (none with
 /// `--no-render`), and prints the report as the flags ask.
-pub fn headless<'g>(
+/// `presenter` draws the frames; none with `--no-render` (the update alone is timed).
+pub fn headless(
     source: &mut dyn FrameSource,
     file: &Path,
     flight: &FlightPath,
-    up: UpAxis,
-    tolerance_px: f64,
+    (up, tolerance_px): (UpAxis, f64),
     fly_args: &FlyArgs,
-    gpu: Option<&'g Gpu>,
-    presenter: impl FnOnce(&'g Gpu) -> relief::Result<Box<dyn Presenter + 'g>>,
+    mut presenter: Option<Box<dyn Presenter + '_>>,
 ) -> anyhow::Result<ExitCode> {
     let path = fly_args.path.as_deref().unwrap_or(Path::new("path"));
     let cameras = cameras(flight, path, up, fly_args)?;
@@ -42,10 +41,6 @@ pub fn headless<'g>(
     options.frames_out = fly_args.frames_out.clone();
     options.stats_out = fly_args.stats.clone();
     options.progress = progress(fly_args.quiet);
-    let mut presenter = match gpu {
-        Some(gpu) if !fly_args.no_render => Some(presenter(gpu)?),
-        _ => None,
-    };
     let report = fly(source, &cameras, presenter.as_deref_mut(), &options)?;
     if fly_args.json {
         super::print_json(&report)?;
@@ -111,7 +106,9 @@ pub fn mesh(
     let gpu = if fly_args.no_render { None } else { Some(Gpu::headless()?) };
     let bounds = source.bounds();
     let (w, h, style) = (fly_args.width, fly_args.height, relief::render::MeshStyle { wireframe: fly_args.wireframe });
-    headless(source, file, &flight, up, tolerance_px, fly_args, gpu.as_ref(), |gpu| {
-        Ok(Box::new(relief::render::MeshPresenter::new(gpu, bounds, up, w, h, style)?))
-    })
+    let presenter: Option<Box<dyn Presenter + '_>> = match &gpu {
+        Some(gpu) => Some(Box::new(relief::render::MeshPresenter::new(gpu, bounds, up, w, h, style)?)),
+        None => None,
+    };
+    headless(source, file, &flight, (up, tolerance_px), fly_args, presenter)
 }

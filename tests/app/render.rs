@@ -256,7 +256,7 @@ fn a_frame_uploads_the_strip_not_the_terrain() {
     for g in [&GOLDEN[0], &GOLDEN[1], &GOLDEN[4]] {
         let (_, r) = render_golden(g, &gpu);
         let per_vertex = VERTEX_BYTES + if g.geomorph.is_some() { MORPH_BYTES } else { 0 };
-        assert_eq!(r.upload_bytes, r.strip_len as u64 * per_vertex + FRAME_UNIFORM_BYTES, "{}", g.name);
+        assert_eq!(r.upload_bytes, r.strip_len * per_vertex + FRAME_UNIFORM_BYTES, "{}", g.name);
         let t = terrain(g.dem);
         let terrain_bytes = t.grid().vertices() * 4;
         assert_eq!(r.heights_gpu_bytes, t.grid().size() as u64 * t.grid().size() as u64 * 4);

@@ -105,7 +105,7 @@ fn pages_header() -> PageHeader {
 }
 
 /// The file length each sample header describes.
-fn file_len<F: Format>(kind: FileKind) -> u64 {
+fn file_len(kind: FileKind) -> u64 {
     match kind {
         FileKind::Terrain => PAYLOAD_OFFSET + 109 * 12,
         FileKind::Vdt => vdt_header().file_bytes(),
@@ -118,7 +118,7 @@ fn file_len<F: Format>(kind: FileKind) -> u64 {
 /// one-line error naming the file and the format.
 fn container_checks<F: Format + std::fmt::Debug + PartialEq>(good: &F, name: &str) {
     let kind = F::KIND;
-    let len = file_len::<F>(kind);
+    let len = file_len(kind);
     let path = Path::new(name);
     let bytes = good.encode().0;
     let decoded: F = decode_header(path, &bytes, len).unwrap();
@@ -164,7 +164,7 @@ fn corrupt_field<F: Format + std::fmt::Debug>(name: &str, edit: impl Fn(&mut Hea
     });
     edit(&mut h);
     h.seal();
-    let e = decode_header::<F>(Path::new(name), &h.0, file_len::<F>(F::KIND)).unwrap_err().to_string();
+    let e = decode_header::<F>(Path::new(name), &h.0, file_len(F::KIND)).unwrap_err().to_string();
     assert!(e.starts_with(&format!("{name}: corrupt {}: ", F::KIND.name())) && e.contains(want), "{e}");
 }
 

@@ -653,7 +653,7 @@ impl FlightPath {
 /// What a path is made over or around: a terrain file, or a mesh's bounding box with its up axis
 /// (a mesh file, a meta-node file or a page file).
 pub enum PathSubject {
-    Terrain(TerrainFile),
+    Terrain(Box<TerrainFile>),
     Box(Bounds, UpAxis),
 }
 
@@ -669,7 +669,7 @@ impl PathSubject {
                 if up.is_some_and(|u| u != UpAxis::Z) {
                     return Err(Error::InvalidArgument(format!("{}: a terrain's up axis is z", path.display())));
                 }
-                PathSubject::Terrain(TerrainFile::open(path)?)
+                PathSubject::Terrain(Box::new(TerrainFile::open(path)?))
             }
             Some(FileKind::Pages) => {
                 let b = crate::format::pagefile::PageFile::open(path)?.header().bounds;

@@ -543,7 +543,7 @@ mod tests {
         b[at..at + 4].copy_from_slice(&100_000u32.to_le_bytes());
         std::fs::write(&bad, &b).unwrap();
         let g = MetaNodeFile::open(&bad).unwrap();
-        assert!(BlockView::parse(&*g.block(0).unwrap(), 1).is_err());
+        assert!(BlockView::parse(&g.block(0).unwrap(), 1).is_err());
         // Options.
         let e = write_metanode_file(
             &forest(&nodes, &tris, 64),
