@@ -205,12 +205,9 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
                     Access::Pool { bytes: parse_memory("--memory", &memory, tree)? }
                 }
             };
-            if cold {
-                relief::pager::drop_from_page_cache(&file)?;
-            }
             let meta = MetaNodeFile::open_with(&file, access)?;
             if cold {
-                meta.advise_random()?;
+                meta.start_cold()?;
             }
             let prefetch = match prefetch {
                 PrefetchArg::Paper => Prefetch::Paper,

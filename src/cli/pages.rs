@@ -132,12 +132,9 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
                 let h = PageFile::open(&file)?.header().clone();
                 Ok(h.pages * h.page_bytes as u64)
             })?;
-            if cold {
-                relief::pager::drop_from_page_cache(&file)?;
-            }
             let pages = PageFile::open_with(&file, access)?;
             if cold {
-                pages.advise_random()?;
+                pages.start_cold()?;
             }
             let mut source = PageSource::new(
                 pages,

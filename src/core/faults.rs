@@ -36,7 +36,7 @@ use crate::metanode::blocking::BlockingOptions;
 use crate::metanode::build::BuildOptions;
 use crate::metanode::navigate::{NavOptions, Navigator, PagedStore};
 use crate::metanode::VdtMetric;
-use crate::pager::{drop_from_page_cache, Access, Granules, LruCache, LruTrace, MemoryCap, OsFaults, PageGeometry};
+use crate::pager::{Access, Granules, LruCache, LruTrace, MemoryCap, OsFaults, PageGeometry};
 use crate::pager::{PageObserver, Pager};
 use crate::preprocess::convert::{convert, relayout, ConvertOptions};
 use crate::refine::{RefineOptions, Refiner, Strip};
@@ -351,7 +351,7 @@ pub fn run_pages(
     Ok(run_of(Backend::Pages, layout, Access::Read, tolerance_px, per_frame, &trace, update_s, triangles, file_bytes))
 }
 
-/// The same flight cold: `path` dropped from the page cache, opened afresh with readahead off,
+/// The same flight cold: `path` opened afresh, readahead off, dropped from the page cache,
 /// the process's major faults and storage reads counted per frame.
 fn run_os(
     backend: Backend,
@@ -360,7 +360,6 @@ fn run_os(
     cameras: &[Camera],
     tolerance_px: f64,
 ) -> Result<OsFaultCounts> {
-    drop_from_page_cache(path)?;
     let os = OsFaults::start();
     let mut per_frame = Vec::with_capacity(cameras.len());
     let mut read_bytes = 0;
@@ -371,7 +370,7 @@ fn run_os(
     match backend {
         Backend::Terrain => {
             let terrain = TerrainFile::open(path)?;
-            terrain.advise_random()?;
+            terrain.start_cold()?;
             let options = RefineOptions { tolerance_px, ..Default::default() };
             let (mut refiner, mut strip) = (Refiner::new(1)?, Strip::new());
             os.take();
@@ -383,7 +382,7 @@ fn run_os(
         }
         Backend::MetaNode => {
             let file = MetaNodeFile::open_with(path, access)?;
-            file.advise_random()?;
+            file.start_cold()?;
             let mut nav = Navigator::new(&file, PagedStore::new(&file), nav_options())?;
             os.take();
             for camera in cameras {
@@ -401,7 +400,7 @@ fn run_os(
         }
         Backend::Pages => {
             let file = PageFile::open_with(path, access)?;
-            file.advise_random()?;
+            file.start_cold()?;
             let mut source = PageSource::new(file, FetchOptions::default());
             os.take();
             for camera in cameras {
@@ -538,9 +537,10 @@ pub fn run_layouts(
                                     None => "without a memory cap".into(),
                                 };
                                 format!(
-                                    "OS counts: each file dropped from the page cache (posix_fadvise DONTNEED) and \
-                                     read afresh with readahead off (MADV_RANDOM, POSIX_FADV_RANDOM); major faults \
-                                     from getrusage, storage reads from /proc/self/io, {cap}"
+                                    "OS counts: each file opened afresh, readahead turned off (MADV_RANDOM, \
+                                     POSIX_FADV_RANDOM), then dropped from the page cache (MADV_DONTNEED, \
+                                     posix_fadvise DONTNEED); major faults from getrusage, storage reads from \
+                                     /proc/self/io, {cap}"
                                 )
                             });
                         }

@@ -487,4 +487,10 @@ impl PageFile {
     pub fn advise_random(&self) -> Result<()> {
         self.pager.advise_random()
     }
+
+    /// Readahead off and the file out of the OS page cache, after the open (see
+    /// [`Pager::start_cold`]): the next reads come from storage, each page once.
+    pub fn start_cold(&self) -> Result<()> {
+        self.pager.start_cold()
+    }
 }

@@ -359,6 +359,12 @@ impl TerrainFile {
         self.pager.advise_random()
     }
 
+    /// Readahead off and the file out of the OS page cache, after the open (see
+    /// [`Pager::start_cold`]): the next reads come from storage, each page once.
+    pub fn start_cold(&self) -> Result<()> {
+        self.pager.start_cold()
+    }
+
     /// Recomputes the payload checksum and compares it with the header's.
     pub fn verify_payload(&self) -> Result<()> {
         let computed = match self.mapped_payload() {
