@@ -66,7 +66,9 @@ pub struct FrameStats {
     pub pages_read: u64,
     pub bytes_read: u64,
     /// The disk-page fetch: pages the k-d query named, pages fetched after culling, the seek
-    /// distance of the reads in pages, and the time the reads took, ms.
+    /// distance of the reads in pages, and the time the reads took, ms (the `pread`s with read
+    /// access, the lookups and waits with the pool; 0 with map access, whose faults fall in the
+    /// decoding).
     pub pages_candidate: u64,
     pub pages_requested: u64,
     pub seek_pages: u64,

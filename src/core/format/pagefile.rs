@@ -456,14 +456,14 @@ impl PageFile {
     }
 
     /// Calls `f` with pages `first .. first + count` in order (one `pread` for the run with read
-    /// access; see [`Pager::for_run`]).
+    /// access) and returns the time the reads took (see [`Pager::for_run`]).
     pub fn for_run(
         &self,
         first: u32,
         count: u32,
         buf: &mut BlockBuf,
         f: impl FnMut(u32, &[u8]) -> Result<()>,
-    ) -> Result<()> {
+    ) -> Result<std::time::Duration> {
         self.pager.for_run(first, count, buf, f)
     }
 

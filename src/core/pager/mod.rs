@@ -28,6 +28,7 @@ pub mod source;
 use std::ops::Deref;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
@@ -428,23 +429,29 @@ impl Pager {
     /// Calls `f` with blocks `first .. first + count` in order. Read access reads the run with
     /// one `pread` into `buf` (the blocks must be contiguous in the file, as pages are); map
     /// access borrows each block; the pool hands over each block as [`block`](Self::block) does.
+    ///
+    /// Returns the time spent getting the bytes, not counting `f`: the `pread` with read
+    /// access, the lookups and waits with pool access, zero with map access (its page faults
+    /// happen where `f` touches the bytes and cannot be told apart).
     pub fn for_run(
         &self,
         first: u32,
         count: u32,
         buf: &mut BlockBuf,
         mut f: impl FnMut(u32, &[u8]) -> Result<()>,
-    ) -> Result<()> {
+    ) -> Result<Duration> {
         if count == 0 {
-            return Ok(());
+            return Ok(Duration::ZERO);
         }
         match &self.mode {
             Mode::Read(reads) => {
+                let started = Instant::now();
                 let start = self.extent(first)?;
                 let last = self.extent(first + (count - 1))?;
                 let end = last.offset + last.bytes;
                 buf.resize((end - start.offset) as usize);
                 self.source.read_at(start.offset, buf.bytes_mut())?;
+                let read = started.elapsed();
                 reads.add(&*self.table, count as u64, end - start.offset);
                 for id in first..first + count {
                     let e = self.extent(id)?;
@@ -452,14 +459,24 @@ impl Pager {
                     let at = (e.offset - start.offset) as usize;
                     f(id, &buf.bytes()[at..at + e.bytes as usize])?;
                 }
-                Ok(())
+                Ok(read)
             }
-            _ => {
+            Mode::Map => {
                 for id in first..first + count {
                     let b = self.block(id)?;
                     f(id, &b)?;
                 }
-                Ok(())
+                Ok(Duration::ZERO)
+            }
+            Mode::Pool(_) => {
+                let mut read = Duration::ZERO;
+                for id in first..first + count {
+                    let t = Instant::now();
+                    let b = self.block(id)?;
+                    read += t.elapsed();
+                    f(id, &b)?;
+                }
+                Ok(read)
             }
         }
     }
