@@ -1171,7 +1171,10 @@ mod tests {
             assert!(misses > 0, "16 holders for {metas} meta-nodes must miss");
             assert_eq!(tiny.foldovers(), 0);
             let stats = pool_of(&tiny);
-            assert!(stats.disk_reads > 8 && stats.second_chance_hits > 0, "{prefetch:?}: {stats:?}");
+            // Whether a released block is asked for again before it is recycled (a second-chance
+            // hit) depends on how far the I/O thread got with the prefetches: not asserted here
+            // (the pool's own tests check second chance deterministically).
+            assert!(stats.disk_reads > 8 && stats.evictions > 0, "{prefetch:?}: {stats:?}");
         }
     }
 
