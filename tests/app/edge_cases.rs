@@ -14,7 +14,7 @@ use common::crack::{convert_all, crack_free_everywhere};
 use glam::DVec3;
 use relief::camera::Camera;
 use relief::format::terrain::{Record, TerrainFile};
-use relief::layout::hierarchy::{split_children, Grid, VertexKind, MAX_N};
+use relief::layout::hierarchy::{split_children, split_children_at, Grid, VertexKind, MAX_N};
 use relief::layout::{AnyLayout, Layout, LayoutKind, LayoutVisitor};
 use relief::preprocess::inspect::verify;
 use relief::refine::check::{check_strip, MeshCheck};
@@ -291,6 +291,22 @@ fn the_largest_grid_refines_crack_free_in_every_layout() {
                 let children = layout.split_children(apex, split);
                 let want = split_children((apex.x, apex.y), (split.x, split.y)).map(|(x, y)| layout.vertex(x, y));
                 assert_eq!(children, want, "{name}: children of {split:?} from {apex:?}");
+                let level = grid.level(split.x, split.y);
+                let at = split_children_at((apex.x, apex.y), (split.x, split.y), level);
+                assert_eq!(at, want.map(|v| (v.x, v.y)), "{name}: children at level {level}");
+                if apex.x != c.0 || apex.y != c.1 {
+                    // Below the root triangles: the refinement's index shortcut.
+                    let inner = layout.inner_child_indices(apex.index, split.index, at[0], at[1]);
+                    assert_eq!(inner, want.map(|v| v.index), "{name}: inner children of {split:?} from {apex:?}");
+                }
+                if let (Some(first), true) = (layout.quadtree_children(split.index), level > 2) {
+                    // The grandchildren on split's side lie in split's four quadtree children.
+                    for child in children {
+                        for g in layout.split_children(split, child) {
+                            assert!((first..first + 4).contains(&g.index), "{name}: {g:?} not in {first}..+4");
+                        }
+                    }
+                }
                 (apex, split) = (split, children[(rng.next() % 2) as usize]);
             }
         }

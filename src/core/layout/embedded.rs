@@ -30,7 +30,8 @@
 //! pairing.
 
 use super::interleaved::{
-    black_coords, corner_coords, corner_index, level_offset, quadtree_split_children, white_coords,
+    black_coords, corner_coords, corner_index, level_offset, quadtree_child_indices, quadtree_split_children,
+    white_coords,
 };
 use super::{morton, Layout, LayoutKind, Vertex};
 use crate::layout::hierarchy::{split_children, Grid};
@@ -117,6 +118,17 @@ impl Layout for Embedded {
             return self.root_split_children(apex, split);
         }
         quadtree_split_children(apex, split, 11)
+    }
+
+    #[inline(always)]
+    fn inner_child_indices(&self, apex_index: u64, split_index: u64, _: (u32, u32), _: (u32, u32)) -> [u64; 2] {
+        quadtree_child_indices(apex_index, split_index, 11)
+    }
+
+    #[inline(always)]
+    fn quadtree_children(&self, index: u64) -> Option<u64> {
+        // A hint only: wrapping, as an index without children gives no valid one.
+        Some(index.wrapping_mul(4).wrapping_sub(11))
     }
 }
 

@@ -218,6 +218,25 @@ pub fn split_children(apex: (u32, u32), split: (u32, u32)) -> [(u32, u32); 2] {
     [(left.0 as u32, left.1 as u32), (right.0 as u32, right.1 as u32)]
 }
 
+/// [`split_children`] when the split vertex's level is known (as it is during refinement): the
+/// sign that [`split_children`] finds by looking at `apex − split` follows from the level's parity
+/// instead (an edge midpoint, odd level, sees an axis-aligned `d`). `split_level` must be ≥ 2.
+/// Integer halving is exact here: both components of `d ± rot(d)` are even above level 1.
+#[inline(always)]
+pub fn split_children_at(apex: (u32, u32), split: (u32, u32), split_level: u32) -> [(u32, u32); 2] {
+    let (sx, sy) = (split.0 as i64, split.1 as i64);
+    let (dx, dy) = (apex.0 as i64 - sx, apex.1 as i64 - sy);
+    let (p, q) = ((dx - dy) >> 1, (dx + dy) >> 1);
+    // `a` = split + (d + rot d)/2, `b` = split + (d − rot d)/2, with rot(d) = (−dy, dx).
+    let a = ((sx + p) as u32, (sy + q) as u32);
+    let b = ((sx + q) as u32, (sy - p) as u32);
+    if split_level & 1 == 1 {
+        [a, b]
+    } else {
+        [b, a]
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -337,6 +356,7 @@ mod tests {
             // Left child lies before right: going around the split vertex j, the left child is
             // on the side the strip comes from (checked via the sign of the cross product, which
             // alternates with the level).
+            assert_eq!(split_children_at(i, j, g.level(j.0, j.1)), [l, r], "{i:?} {j:?}");
             walk(g, j, l, seen);
             walk(g, j, r, seen);
         }

@@ -167,6 +167,17 @@ impl Layout for Interleaved {
         }
         quadtree_split_children(apex, split, 7)
     }
+
+    #[inline(always)]
+    fn inner_child_indices(&self, apex_index: u64, split_index: u64, _: (u32, u32), _: (u32, u32)) -> [u64; 2] {
+        quadtree_child_indices(apex_index, split_index, 7)
+    }
+
+    #[inline(always)]
+    fn quadtree_children(&self, index: u64) -> Option<u64> {
+        // A hint only: wrapping, as an index without children gives no valid one.
+        Some(index.wrapping_mul(4).wrapping_sub(7))
+    }
 }
 
 /// SOAR's child rule, shared by the quadtree layouts in which child `k` of node `p` sits at
@@ -174,11 +185,17 @@ impl Layout for Interleaved {
 /// `apex`'s side are `4i − back + ((2i + j + 2) & 3)` and `… + ((2i + j + 3) & 3)`.
 #[inline(always)]
 pub(crate) fn quadtree_split_children(apex: Vertex, split: Vertex, back: u64) -> [Vertex; 2] {
-    let (i, j) = (apex.index, split.index);
     let [l, r] = split_children((apex.x, apex.y), (split.x, split.y));
-    let base = 4 * i - back;
-    let s = 2 * i + j;
-    [Vertex { x: l.0, y: l.1, index: base + ((s + 2) & 3) }, Vertex { x: r.0, y: r.1, index: base + ((s + 3) & 3) }]
+    let [li, ri] = quadtree_child_indices(apex.index, split.index, back);
+    [Vertex { x: l.0, y: l.1, index: li }, Vertex { x: r.0, y: r.1, index: ri }]
+}
+
+/// The indices of [`quadtree_split_children`].
+#[inline(always)]
+pub(crate) fn quadtree_child_indices(apex_index: u64, split_index: u64, back: u64) -> [u64; 2] {
+    let base = (4 * apex_index).wrapping_sub(back);
+    let s = 2 * apex_index + split_index;
+    [base + ((s + 2) & 3), base + ((s + 3) & 3)]
 }
 
 impl Interleaved {

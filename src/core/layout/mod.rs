@@ -109,6 +109,25 @@ pub trait Layout: Clone + Send + Sync + 'static {
         [self.vertex(l.0, l.1), self.vertex(r.0, r.1)]
     }
 
+    /// Record indices of `split`'s two children on `apex`'s side at positions `left` and `right`
+    /// (from [`crate::layout::hierarchy::split_children_at`]), for an `apex` that is itself a split
+    /// vertex of the refinement: below the four root triangles, so never a corner or the grid
+    /// centre. The quadtree layouts compute them from the two parents' indices alone.
+    #[inline(always)]
+    fn inner_child_indices(&self, apex_index: u64, split_index: u64, left: (u32, u32), right: (u32, u32)) -> [u64; 2] {
+        let _ = (apex_index, split_index);
+        [self.index(left.0, left.1), self.index(right.0, right.1)]
+    }
+
+    /// In the quadtree layouts, the records refinement reads two levels below a split vertex (the
+    /// children of both its children, on its side) are its own four quadtree children, which lie
+    /// together: the index of the first (for one prefetch). `None` where they do not.
+    #[inline(always)]
+    fn quadtree_children(&self, index: u64) -> Option<u64> {
+        let _ = index;
+        None
+    }
+
     /// Unused fraction of the index space relative to the vertex count: `records / vertices − 1`.
     fn waste_ratio(&self) -> f64 {
         self.records() as f64 / self.grid().vertices() as f64 - 1.0
@@ -208,6 +227,12 @@ impl Layout for AnyLayout {
     }
     fn split_children(&self, apex: Vertex, split: Vertex) -> [Vertex; 2] {
         any_dispatch!(self, l => l.split_children(apex, split))
+    }
+    fn inner_child_indices(&self, apex_index: u64, split_index: u64, left: (u32, u32), right: (u32, u32)) -> [u64; 2] {
+        any_dispatch!(self, l => l.inner_child_indices(apex_index, split_index, left, right))
+    }
+    fn quadtree_children(&self, index: u64) -> Option<u64> {
+        any_dispatch!(self, l => l.quadtree_children(index))
     }
 }
 

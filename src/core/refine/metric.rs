@@ -11,6 +11,9 @@ use glam::DVec3;
 
 /// The squared distance an error metric compares against the reach `κ δ + r`.
 pub trait ErrorMetric: Clone + Send + Sync + 'static {
+    /// Whether [`Self::distance_sq`] is `rel_m.length_squared()`, which refinement then evaluates
+    /// for two vertices at once (with the same operations, so the same result).
+    const EUCLIDEAN: bool = false;
     /// Squared distance, m², for a vertex at `rel_m = p − eye`. `sqrt` of it must be 1-Lipschitz.
     fn distance_sq(&self, rel_m: DVec3) -> f64;
 }
@@ -20,6 +23,7 @@ pub trait ErrorMetric: Clone + Send + Sync + 'static {
 pub struct Isotropic;
 
 impl ErrorMetric for Isotropic {
+    const EUCLIDEAN: bool = true;
     #[inline(always)]
     fn distance_sq(&self, rel_m: DVec3) -> f64 {
         rel_m.length_squared()

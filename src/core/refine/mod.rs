@@ -22,11 +22,12 @@ pub mod metric;
 pub mod minimal;
 pub mod records;
 pub mod report;
+mod walk;
 
 pub use records::{MappedRecords, PagerRecords, RecordSource};
+use walk::{probe_vertex, Carry, MorphTri, NoMorph, Walk};
 
 use glam::DVec3;
-use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::camera::Camera;
@@ -92,9 +93,8 @@ impl Strip {
     /// at an index of parity `1 − p`.
     #[inline(always)]
     fn append(&mut self, v: StripVertex, parity: u8, m: Morph, morph: bool) {
-        let n = self.vertices.len();
-        debug_assert!(n >= 2);
-        let (prev, last) = (self.vertices[n - 2], self.vertices[n - 1]);
+        // A strip is seeded with two vertices, so the pattern always matches.
+        let &[.., prev, last] = self.vertices.as_slice() else { return };
         if v == last || v == prev {
             return;
         }
@@ -103,8 +103,9 @@ impl Strip {
         } else {
             self.vertices.push(prev);
             if morph {
-                let pm = self.morph[n - 2];
-                self.morph.push(pm);
+                if let &[.., pm, _] = self.morph.as_slice() {
+                    self.morph.push(pm);
+                }
             }
         }
         self.vertices.push(v);
@@ -194,11 +195,31 @@ pub struct View<M: ErrorMetric> {
     pub lod: Lod<M>,
     spacing_m: [f64; 2],
     kappa_inner: f64,
-    /// Slack added to a vertex's radius per level (metres), so that rounding in the f64 test can
-    /// never make a child active while its parent is not ([`crate::lod::margin_for_scale`]).
-    margin_m: f64,
+    /// Slack added to a vertex's radius (metres), per level: `margin · level`, with the margin
+    /// from [`crate::lod::margin_for_scale`], so that rounding in the f64 test can never make a
+    /// child active while its parent is not. A table, as a grid has at most 63 levels.
+    slack_m: [f64; 64],
+    /// The constants of [`Self::active_pair`], each in both lanes.
+    lanes: Lanes,
     cull: bool,
     morph: bool,
+}
+
+/// Two f64 lanes, aligned for one load.
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C, align(16))]
+struct Pair([f64; 2]);
+
+/// [`View::active_pair`]'s constants.
+#[derive(Clone, Debug)]
+struct Lanes {
+    spacing_x: Pair,
+    spacing_y: Pair,
+    eye_x: Pair,
+    eye_y: Pair,
+    eye_z: Pair,
+    kappa: Pair,
+    slack: [Pair; 64],
 }
 
 pub use crate::lod::Test;
@@ -227,11 +248,23 @@ impl<M: ErrorMetric> View<M> {
         .into_iter()
         .filter(|v| v.is_finite())
         .fold(0.0, f64::max);
+        let margin_m = crate::lod::margin_for_scale(scale);
+        let two = |v: f64| Pair([v, v]);
+        let lanes = Lanes {
+            spacing_x: two(spacing_m[0]),
+            spacing_y: two(spacing_m[1]),
+            eye_x: two(lod.eye.x),
+            eye_y: two(lod.eye.y),
+            eye_z: two(lod.eye.z),
+            kappa: two(lod.kappa),
+            slack: std::array::from_fn(|level| two(margin_m * level as f64)),
+        };
         View {
+            lanes,
             kappa_inner: lod.kappa / ratio,
             lod,
             spacing_m,
-            margin_m: crate::lod::margin_for_scale(scale),
+            slack_m: std::array::from_fn(|level| margin_m * level as f64),
             cull: options.cull,
             morph: options.morph_ratio.is_some(),
         }
@@ -256,8 +289,73 @@ impl<M: ErrorMetric> View<M> {
     #[inline(always)]
     pub fn test<const CULL: bool>(&self, x: u32, y: u32, level: u32, rec: Record, mask: u8) -> Test {
         let rel = self.position(x, y, rec.z) - self.lod.eye;
-        let r = rec.radius as f64 + self.margin_m * level as f64;
+        let r = rec.radius as f64 + self.slack(level);
         self.lod.test::<CULL>(rel, rec.error as f64, r, mask)
+    }
+
+    /// The culling half of [`Self::test`], for a vertex whose error asks for refinement.
+    #[inline(always)]
+    pub(crate) fn cull(&self, x: u32, y: u32, level: u32, rec: Record, mask: u8) -> Test {
+        let rel = self.position(x, y, rec.z) - self.lod.eye;
+        self.lod.cull(rel, rec.radius as f64 + self.slack(level), mask)
+    }
+
+    /// [`Self::test`] without culling for two vertices of one level at once, for a Euclidean
+    /// metric: whether each is active. The same operations in the same order as the one-vertex
+    /// test, in two lanes, so the same answers (a test compares them).
+    #[inline(always)]
+    pub(crate) fn active_pair(
+        &self,
+        l: (u32, u32),
+        r: (u32, u32),
+        rec_l: Record,
+        rec_r: Record,
+        level: u32,
+    ) -> (bool, bool) {
+        #[cfg(target_arch = "x86_64")]
+        if M::EUCLIDEAN {
+            return self.active_pair_sse2(l, r, rec_l, rec_r, level);
+        }
+        let one = |(x, y): (u32, u32), rec| matches!(self.test::<false>(x, y, level, rec, 0), Test::Active { .. });
+        (one(l, rec_l), one(r, rec_r))
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn active_pair_sse2(&self, l: (u32, u32), r: (u32, u32), rec_l: Record, rec_r: Record, level: u32) -> (bool, bool) {
+        use std::arch::x86_64::*;
+        let c = &self.lanes;
+        // SAFETY: SSE2 is part of the x86-64 baseline; the loads read the 16-byte-aligned pairs
+        // of `self.lanes`.
+        unsafe {
+            let ld = |p: &Pair| _mm_load_pd(p.0.as_ptr());
+            // (xl, yl, xr, yr) as i32 lanes, biased into i32 (x − 2³¹, exact), reordered to
+            // (xl, xr, yl, yr), converted and unbiased (exact).
+            let keys = _mm_set_epi32(
+                (r.1 ^ 0x8000_0000) as i32,
+                (r.0 ^ 0x8000_0000) as i32,
+                (l.1 ^ 0x8000_0000) as i32,
+                (l.0 ^ 0x8000_0000) as i32,
+            );
+            let v = _mm_shuffle_epi32::<0b11_01_10_00>(keys);
+            let bias = _mm_set1_pd(2147483648.0);
+            let xs = _mm_add_pd(_mm_cvtepi32_pd(v), bias);
+            let ys = _mm_add_pd(_mm_cvtepi32_pd(_mm_unpackhi_epi64(v, v)), bias);
+            let rx = _mm_sub_pd(_mm_mul_pd(xs, ld(&c.spacing_x)), ld(&c.eye_x));
+            let ry = _mm_sub_pd(_mm_mul_pd(ys, ld(&c.spacing_y)), ld(&c.eye_y));
+            let rz = _mm_sub_pd(_mm_cvtps_pd(_mm_setr_ps(rec_l.z, rec_r.z, 0.0, 0.0)), ld(&c.eye_z));
+            // |rel|² as glam's length_squared: (x² + y²) + z².
+            let d2 = _mm_add_pd(_mm_add_pd(_mm_mul_pd(rx, rx), _mm_mul_pd(ry, ry)), _mm_mul_pd(rz, rz));
+            let radius = _mm_add_pd(
+                _mm_cvtps_pd(_mm_setr_ps(rec_l.radius, rec_r.radius, 0.0, 0.0)),
+                ld(&c.slack[level as usize & 63]),
+            );
+            let error = _mm_cvtps_pd(_mm_setr_ps(rec_l.error, rec_r.error, 0.0, 0.0));
+            let reach = _mm_add_pd(_mm_mul_pd(ld(&c.kappa), error), radius);
+            // reach² > d², false for NaN (a corrupt record is never active), as in the scalar test.
+            let m = _mm_movemask_pd(_mm_cmpgt_pd(_mm_mul_pd(reach, reach), d2));
+            (m & 1 != 0, m & 2 != 0)
+        }
     }
 
     /// Whether a vertex is active, evaluated from scratch (all planes); equals what refinement
@@ -271,11 +369,17 @@ impl<M: ErrorMetric> View<M> {
         matches!(t, Test::Active { .. })
     }
 
+    /// The radius slack at `level`.
+    #[inline(always)]
+    fn slack(&self, level: u32) -> f64 {
+        self.slack_m[level as usize & 63]
+    }
+
     /// Geomorph blend of an active vertex: 0 where it just became active, 1 inside the inner radius.
     #[inline(always)]
     fn blend(&self, x: u32, y: u32, level: u32, rec: Record) -> f32 {
         let rel = self.position(x, y, rec.z) - self.lod.eye;
-        let r = rec.radius as f64 + self.margin_m * level as f64;
+        let r = rec.radius as f64 + self.slack(level);
         let outer = self.lod.kappa * rec.error as f64 + r;
         let inner = self.kappa_inner * rec.error as f64 + r;
         let span = outer * outer - inner * inner;
@@ -343,166 +447,9 @@ pub fn with_view<V: ViewVisitor>(
     terrain.layout().visit(Go { terrain, camera, options, visitor })
 }
 
-/// Morphed heights of a triangle's corners (left end of the hypotenuse, apex, right end) and the
-/// apex's blend, carried down the recursion.
-#[derive(Clone, Copy, Debug, Default)]
-struct MorphTri {
-    z_left: f32,
-    z_apex: f32,
-    z_right: f32,
-    blend_left: f32,
-    blend_apex: f32,
-}
-
-impl MorphTri {
-    #[inline(always)]
-    fn apex(&self) -> Morph {
-        Morph { blend: self.blend_apex, z_m: self.z_apex }
-    }
-    #[inline(always)]
-    fn left(&self) -> Morph {
-        Morph { blend: self.blend_left, z_m: self.z_left }
-    }
-}
-
-/// What the recursion carries for geomorphing: [`MorphTri`] when on, nothing when off (so the
-/// plain refinement passes no extra arguments).
-trait Carry: Copy + Send + Sync + 'static {
-    const ON: bool;
-    fn new(t: &MorphTri) -> Self;
-    fn apex(&self) -> Morph;
-    /// Height the split vertex morphs from: the mean of the hypotenuse's (morphed) ends.
-    fn mid(&self) -> f32;
-    /// The states of the left and right halves, given the split vertex's morphed height and blend.
-    fn halves(&self, z_split: f32, blend_split: f32) -> (Self, Self);
-}
-
-#[derive(Clone, Copy, Debug, Default)]
-struct NoMorph;
-
-impl Carry for NoMorph {
-    const ON: bool = false;
-    #[inline(always)]
-    fn new(_: &MorphTri) -> Self {
-        NoMorph
-    }
-    #[inline(always)]
-    fn apex(&self) -> Morph {
-        Morph::default()
-    }
-    #[inline(always)]
-    fn mid(&self) -> f32 {
-        0.0
-    }
-    #[inline(always)]
-    fn halves(&self, _: f32, _: f32) -> (Self, Self) {
-        (NoMorph, NoMorph)
-    }
-}
-
-impl Carry for MorphTri {
-    const ON: bool = true;
-    #[inline(always)]
-    fn new(t: &MorphTri) -> Self {
-        *t
-    }
-    #[inline(always)]
-    fn apex(&self) -> Morph {
-        MorphTri::apex(self)
-    }
-    #[inline(always)]
-    fn mid(&self) -> f32 {
-        0.5 * (self.z_left + self.z_right)
-    }
-    #[inline(always)]
-    fn halves(&self, z: f32, blend: f32) -> (Self, Self) {
-        let m = self;
-        (
-            MorphTri { z_left: m.z_left, z_apex: z, z_right: m.z_apex, blend_left: m.blend_left, blend_apex: blend },
-            MorphTri { z_left: m.z_apex, z_apex: z, z_right: m.z_right, blend_left: m.blend_apex, blend_apex: blend },
-        )
-    }
-}
-
 #[inline(always)]
 fn sv(v: Vertex) -> StripVertex {
     StripVertex { x: v.x, y: v.y }
-}
-
-/// The recursion state of one (sub)strip.
-struct Walk<'a, L, R: ?Sized, M: ErrorMetric, const CULL: bool, S: Carry> {
-    layout: &'a L,
-    records: &'a R,
-    view: &'a View<M>,
-    strip: &'a mut Strip,
-    counters: RefineCounters,
-    carry: std::marker::PhantomData<S>,
-}
-
-/// What testing a triangle's split vertex gives the recursion.
-struct Split {
-    mask: u8,
-    z: f32,
-    blend: f32,
-}
-
-impl<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, S: Carry> Walk<'_, L, R, M, CULL, S> {
-    /// Tests split vertex `j` (level `lj`) of a triangle whose morph state is `m`.
-    #[inline(always)]
-    fn test_split(&mut self, j: Vertex, lj: u32, mask: u8, m: &S) -> Option<Split> {
-        self.counters.visited += 1;
-        let rec = self.records.record(j.index);
-        match self.view.test::<CULL>(j.x, j.y, lj, rec, mask) {
-            Test::Inactive => None,
-            Test::Culled => {
-                self.counters.culled += 1;
-                None
-            }
-            Test::Active { mask } => {
-                if S::ON {
-                    let blend = self.view.blend(j.x, j.y, lj, rec);
-                    let mid = m.mid();
-                    Some(Split { mask, z: mid + blend * (rec.z - mid), blend })
-                } else {
-                    Some(Split { mask, z: 0.0, blend: 1.0 })
-                }
-            }
-        }
-    }
-
-    /// The hoisted `submesh_refine`: triangle with active apex `i` (level `l`) and hypotenuse
-    /// midpoint `j`. Tests `j` once; recurses into both halves if it is active, appending `i`
-    /// between them, else appends `i` alone.
-    fn sub(&mut self, i: Vertex, j: Vertex, l: u32, mask: u8, m: S) {
-        if l >= 2 {
-            if let Some(s) = self.test_split(j, l - 1, mask, &m) {
-                if l >= 3 {
-                    let [cl, cr] = self.layout.split_children(i, j);
-                    if L::PREFETCH_GRANDCHILDREN && l >= 4 {
-                        // The grandchildren are read right after the children: start their loads
-                        // now, so their latency overlaps the children's.
-                        for c in [cl, cr] {
-                            let [a, b] = self.layout.split_children(j, c);
-                            self.records.prefetch(a.index);
-                            self.records.prefetch(b.index);
-                        }
-                    }
-                    let (left, right) = m.halves(s.z, s.blend);
-                    self.sub(j, cl, l - 1, s.mask, left);
-                    self.strip.append(sv(i), (l & 1) as u8, m.apex(), S::ON);
-                    self.sub(j, cr, l - 1, s.mask, right);
-                } else {
-                    // j is a finest-level vertex: its triangles have no children.
-                    let mj = Morph { blend: s.blend, z_m: s.z };
-                    self.strip.append(sv(j), 1, mj, S::ON);
-                    self.strip.append(sv(i), 0, m.apex(), S::ON);
-                    self.strip.append(sv(j), 1, mj, S::ON);
-                }
-                return;
-            }
-        }
-        self.strip.append(sv(i), (l & 1) as u8, m.apex(), S::ON);
-    }
 }
 
 /// A pending triangle of the top levels, refined as one task on a worker thread.
@@ -540,7 +487,9 @@ pub struct Refiner {
     next_items: Vec<Item>,
     tasks: Vec<Task>,
     next_tasks: Vec<Task>,
-    chunks: Vec<Strip>,
+    backs: Vec<Back>,
+    /// Per task, where a worker left it: (worker, start, end) in that worker's strip.
+    placed: Vec<Option<(usize, usize, usize)>>,
 }
 
 impl Refiner {
@@ -549,8 +498,9 @@ impl Refiner {
         let threads = threads.max(1);
         let pool = if threads > 1 {
             Some(
+                // The calling thread refines too: the pool holds the other threads.
                 rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
+                    .num_threads(threads - 1)
                     .thread_name(|k| format!("relief-refine-{k}"))
                     .build()
                     .map_err(|e| {
@@ -569,7 +519,8 @@ impl Refiner {
             next_items: Vec::new(),
             tasks: Vec::new(),
             next_tasks: Vec::new(),
-            chunks: Vec::new(),
+            backs: Vec::new(),
+            placed: Vec::new(),
         })
     }
 
@@ -639,15 +590,14 @@ impl Refiner {
         view: &View<M>,
         strip: &mut Strip,
     ) -> RefineCounters {
-        match (view.cull, view.morph) {
-            (false, false) => self.refine_mode::<L, R, M, false, NoMorph>(layout, records, view, strip),
-            (true, false) => self.refine_mode::<L, R, M, true, NoMorph>(layout, records, view, strip),
-            (false, true) => self.refine_mode::<L, R, M, false, MorphTri>(layout, records, view, strip),
-            (true, true) => self.refine_mode::<L, R, M, true, MorphTri>(layout, records, view, strip),
+        if view.morph {
+            self.refine_mode::<L, R, M, MorphTri>(layout, records, view, strip)
+        } else {
+            self.refine_mode::<L, R, M, NoMorph>(layout, records, view, strip)
         }
     }
 
-    fn refine_mode<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, S: Carry>(
+    fn refine_mode<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
         &mut self,
         layout: &L,
         records: &R,
@@ -678,37 +628,42 @@ impl Refiner {
                 m: MorphTri { z_left: ml.z_m, z_apex: zc, z_right: mr.z_m, blend_left: 1.0, blend_apex: 1.0 },
             }
         });
-        strip.seed(sv(sw), corners[0].1, S::ON);
         let parallel = self.pool.is_some() && grid.levels() >= 8 && self.last_len >= self.parallel_min_len;
-        let counters = if parallel {
-            self.refine_parallel::<L, R, M, CULL, S>(layout, records, view, strip, &roots, &corners)
-        } else {
-            let mut walk = Walk::<L, R, M, CULL, S> {
-                layout,
-                records,
-                view,
-                strip,
-                counters: Default::default(),
-                carry: Default::default(),
-            };
-            for (k, t) in roots.iter().enumerate() {
-                walk.sub(t.apex, t.split, t.level, t.mask, S::new(&t.m));
-                if k < 3 {
-                    let (v, m) = corners[k + 1];
-                    walk.strip.append(sv(v), 1, m, S::ON);
+        // The walk writes into reserved room (see `walk::Out`); in the rare frame whose strip
+        // outgrows it, it is refined again with twice the room.
+        let last = if self.last_len == usize::MAX { 0 } else { self.last_len };
+        let mut reserve = last.saturating_add(last / 2).max(1024);
+        loop {
+            strip.seed(sv(sw), corners[0].1, S::ON);
+            let counters = if parallel {
+                self.refine_parallel::<L, R, M, S>(layout, records, view, strip, &roots, &corners, reserve)
+            } else {
+                let (mut walk, mut at) = Walk::<L, R, M, S>::new(layout, records, view, strip, reserve);
+                for (k, t) in roots.iter().enumerate() {
+                    at = walk.sub(at, t.apex, t.split, t.level, t.mask, S::new(&t.m));
+                    if k < 3 {
+                        let (v, m) = corners[k + 1];
+                        at = walk.append(at, sv(v), 1, m);
+                    }
                 }
+                walk.finish(at)
+            };
+            if let Some(counters) = counters {
+                strip.parity = (strip.len() % 2) as u8;
+                strip.push(sv(sw), corners[0].1, S::ON);
+                self.last_len = strip.len();
+                return counters;
             }
-            walk.counters
-        };
-        strip.push(sv(sw), corners[0].1, S::ON);
-        self.last_len = strip.len();
-        counters
+            reserve = reserve.saturating_mul(2).max(strip.vertices.capacity());
+        }
     }
 
     /// Expands the top of the recursion breadth-first (keeping strip order) until there are enough
-    /// tasks to balance the pool, refines the tasks in parallel into their own strips, then
-    /// stitches them with degenerate triangles so that every vertex keeps its winding parity.
-    fn refine_parallel<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, const CULL: bool, S: Carry>(
+    /// tasks to balance the threads, refines the tasks in parallel (the calling thread's straight
+    /// into the strip, the workers' into their own), then stitches the workers' in with degenerate
+    /// triangles so that every vertex keeps its winding parity.
+    #[allow(clippy::too_many_arguments)]
+    fn refine_parallel<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
         &mut self,
         layout: &L,
         records: &R,
@@ -716,7 +671,8 @@ impl Refiner {
         strip: &mut Strip,
         roots: &[Task; 4],
         corners: &[(Vertex, Morph); 4],
-    ) -> RefineCounters {
+        reserve: usize,
+    ) -> Option<RefineCounters> {
         let mut counters = RefineCounters::default();
         self.items.clear();
         self.tasks.clear();
@@ -730,7 +686,6 @@ impl Refiner {
         }
         // Many more tasks than threads, so that work stealing evens out the view-dependent cost.
         let target = 64 * self.threads;
-        let mut scratch = Strip::new();
         while self.tasks.len() < target {
             let mut expanded = false;
             self.next_items.clear();
@@ -747,28 +702,19 @@ impl Refiner {
                     continue;
                 }
                 expanded = true;
-                let mut walk = Walk::<L, R, M, CULL, S> {
-                    layout,
-                    records,
-                    view,
-                    strip: &mut scratch,
-                    counters: Default::default(),
-                    carry: Default::default(),
-                };
-                let split = walk.test_split(t.split, t.level - 1, t.mask, &S::new(&t.m));
-                counters += walk.counters;
+                let split = probe_vertex(records, view, t.split, t.level - 1, t.mask, &S::new(&t.m), &mut counters);
                 match split {
                     None => self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, t.m.apex())),
-                    Some(s) => {
+                    Some((mask, p)) => {
                         let [cl, cr] = layout.split_children(t.apex, t.split);
-                        let (left, right) = Carry::halves(&t.m, s.z, s.blend);
+                        let (left, right) = Carry::halves(&t.m, S::morph(p));
                         self.next_items.push(Item::Task(self.next_tasks.len()));
                         self.next_tasks.push(Task {
                             apex: t.split,
                             split: cl,
                             left: t.left,
                             level: t.level - 1,
-                            mask: s.mask,
+                            mask,
                             m: left,
                         });
                         self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, t.m.apex()));
@@ -778,7 +724,7 @@ impl Refiner {
                             split: cr,
                             left: sv(t.apex),
                             level: t.level - 1,
-                            mask: s.mask,
+                            mask,
                             m: right,
                         });
                     }
@@ -791,64 +737,201 @@ impl Refiner {
             }
         }
 
-        if self.chunks.len() < self.tasks.len() {
-            self.chunks.resize_with(self.tasks.len(), Strip::new);
+        // The calling thread takes tasks from the front, in strip order, refining them straight
+        // into `strip` (as the single-threaded walk would); the pool's workers take them from the
+        // back into buffers of their own. Where the two meet depends on how fast each goes, so the
+        // split balances itself; only the workers' share is copied into the strip afterwards.
+        let n = self.tasks.len();
+        let claims = Claims::new(n);
+        let workers = self.threads - 1;
+        if self.backs.len() < workers {
+            self.backs.resize_with(workers, Back::default);
         }
         let tasks = &self.tasks;
-        let chunks = &mut self.chunks[..tasks.len()];
+        let items = &self.items;
+        let backs = &mut self.backs[..workers];
         let pool = self.pool.as_ref().expect("parallel refinement has a pool");
-        let chunk_counters = pool.install(|| {
-            chunks
-                .par_iter_mut()
-                .zip(tasks.par_iter())
-                .map(|(chunk, t)| {
-                    chunk.seed(t.left, t.m.left(), S::ON);
-                    let mut walk = Walk::<L, R, M, CULL, S> {
-                        layout,
-                        records,
-                        view,
-                        strip: chunk,
-                        counters: Default::default(),
-                        carry: Default::default(),
-                    };
-                    walk.sub(t.apex, t.split, t.level, t.mask, S::new(&t.m));
-                    walk.counters
-                })
-                .reduce(RefineCounters::default, |mut a, b| {
-                    a += b;
-                    a
-                })
-        });
-        counters += chunk_counters;
-
-        let total: usize = self.chunks[..tasks.len()].iter().map(|c| c.len() + 1).sum();
-        strip.vertices.reserve(total + self.items.len() * 2);
-        for item in &self.items {
-            match *item {
-                Item::Append(v, p, m) => strip.append(v, p, m, S::ON),
-                Item::Task(k) => {
-                    let chunk = &self.chunks[k];
-                    let (a, ma) = (chunk.vertices[0], if S::ON { chunk.morph[0] } else { Morph::default() });
-                    // The chunk was refined from `(a, a)` with parity 0, the same invariant as the
-                    // whole strip (parity == len % 2): its vertex at local index 2 must land on an
-                    // even index, after a repeated `a` so that the seam triangles are degenerate.
-                    if strip.vertices.last() != Some(&a) {
-                        strip.push(a, ma, S::ON);
+        let mut resume = items.len();
+        let mut front_ok = true;
+        pool.in_place_scope(|scope| {
+            for back in backs.iter_mut() {
+                let claims = &claims;
+                scope.spawn(move |_| back.run::<L, R, M, S>(layout, records, view, tasks, claims));
+            }
+            let (mut walk, mut at) = Walk::<L, R, M, S>::new(layout, records, view, &mut *strip, reserve);
+            for (k, item) in items.iter().enumerate() {
+                match *item {
+                    Item::Append(v, p, m) => at = walk.append(at, v, p, m),
+                    Item::Task(j) => {
+                        if !claims.front() {
+                            resume = k;
+                            break;
+                        }
+                        let t = &tasks[j];
+                        at = walk.sub(at, t.apex, t.split, t.level, t.mask, S::new(&t.m));
                     }
-                    strip.push(a, ma, S::ON);
-                    if strip.len() % 2 == 1 {
-                        strip.push(a, ma, S::ON);
-                    }
-                    strip.vertices.extend_from_slice(&chunk.vertices[2..]);
-                    if S::ON {
-                        strip.morph.extend_from_slice(&chunk.morph[2..]);
-                    }
-                    strip.parity = (strip.len() % 2) as u8;
                 }
             }
+            match walk.finish(at) {
+                Some(c) => counters += c,
+                None => {
+                    // Out of room: stop the workers early too; the frame is refined again.
+                    front_ok = false;
+                    claims.close();
+                }
+            }
+        });
+        if !front_ok || self.backs[..workers].iter().any(|b| b.overflow) {
+            return None;
         }
-        counters
+        strip.parity = (strip.len() % 2) as u8;
+
+        if resume < items.len() {
+            // The workers' tasks, in strip order.
+            self.placed.clear();
+            self.placed.resize(n, None);
+            for (w, back) in self.backs[..workers].iter().enumerate() {
+                counters += back.counters;
+                for seg in &back.segments {
+                    self.placed[seg.task] = Some((w, seg.start, seg.end));
+                }
+            }
+            for item in &self.items[resume..] {
+                match *item {
+                    Item::Append(v, p, m) => strip.append(v, p, m, S::ON),
+                    Item::Task(k) => {
+                        let Some((w, start, end)) = self.placed[k] else {
+                            unreachable!("every task is claimed by the front or a worker")
+                        };
+                        let chunk = &self.backs[w].strip;
+                        stitch(strip, &chunk.vertices[start..end], if S::ON { &chunk.morph[start..end] } else { &[] });
+                    }
+                }
+            }
+        } else {
+            for back in &self.backs[..workers] {
+                counters += back.counters;
+            }
+        }
+        Some(counters)
     }
+}
+
+/// Appends a chunk refined on its own from `(a, a)` with parity 0 (the same invariant as the
+/// whole strip, parity == len % 2): its vertex at local index 2 must land on an even index, after
+/// a repeated `a` so that the seam triangles are degenerate. `morph` is empty when geomorphing
+/// is off.
+fn stitch(strip: &mut Strip, chunk: &[StripVertex], morph: &[Morph]) {
+    let on = !morph.is_empty();
+    let (a, ma) = (chunk[0], morph.first().copied().unwrap_or_default());
+    if strip.vertices.last() != Some(&a) {
+        strip.push(a, ma, on);
+    }
+    strip.push(a, ma, on);
+    if strip.len() % 2 == 1 {
+        strip.push(a, ma, on);
+    }
+    strip.vertices.extend_from_slice(&chunk[2..]);
+    if on {
+        strip.morph.extend_from_slice(&morph[2..]);
+    }
+    strip.parity = (strip.len() % 2) as u8;
+}
+
+/// Which tasks are taken: the calling thread claims from the front, in order, the workers from
+/// the back; `(front << 32) | back` in one word, so that a task is claimed exactly once.
+struct Claims(std::sync::atomic::AtomicU64);
+
+impl Claims {
+    fn new(n: usize) -> Claims {
+        Claims(std::sync::atomic::AtomicU64::new(n as u64))
+    }
+
+    /// Claims the next front task (the calling thread's, in strip order); false once the workers
+    /// have taken the rest.
+    fn front(&self) -> bool {
+        use std::sync::atomic::Ordering::Relaxed;
+        self.0.fetch_update(Relaxed, Relaxed, |w| ((w >> 32) < (w & 0xffff_ffff)).then(|| w + (1 << 32))).is_ok()
+    }
+
+    /// Leaves nothing more to claim.
+    fn close(&self) {
+        use std::sync::atomic::Ordering::Relaxed;
+        let _ = self.0.fetch_update(Relaxed, Relaxed, |w| Some((w & 0xffff_ffff) << 32 | (w & 0xffff_ffff)));
+    }
+
+    /// Claims the last unclaimed task, for a worker.
+    fn back(&self) -> Option<usize> {
+        use std::sync::atomic::Ordering::Relaxed;
+        self.0
+            .fetch_update(Relaxed, Relaxed, |w| ((w >> 32) < (w & 0xffff_ffff)).then(|| w - 1))
+            .ok()
+            .map(|w| (w & 0xffff_ffff) as usize - 1)
+    }
+}
+
+/// A worker's output: its tasks' strips one after another, each seeded with its left vertex at
+/// an even offset (so that each keeps parity == length mod 2, as the walk needs).
+#[derive(Default)]
+struct Back {
+    strip: Strip,
+    segments: Vec<Segment>,
+    counters: RefineCounters,
+    /// A task ran out of room; the frame is refined again (with `reserve` doubled).
+    overflow: bool,
+    reserve: usize,
+}
+
+impl Back {
+    /// Refines tasks claimed from the back until none is left.
+    fn run<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
+        &mut self,
+        layout: &L,
+        records: &R,
+        view: &View<M>,
+        tasks: &[Task],
+        claims: &Claims,
+    ) {
+        if self.overflow {
+            self.reserve = self.reserve.saturating_mul(2).max(self.strip.vertices.capacity());
+        }
+        self.reserve = self.reserve.max(1024);
+        self.strip.vertices.clear();
+        self.strip.morph.clear();
+        self.segments.clear();
+        self.counters = RefineCounters::default();
+        self.overflow = false;
+        while let Some(k) = claims.back() {
+            let t = &tasks[k];
+            if self.strip.len() % 2 == 1 {
+                // Keep every task's seed at an even offset.
+                let pad = self.strip.vertices.last().copied().unwrap_or_default();
+                self.strip.push(pad, Morph::default(), S::ON);
+            }
+            let start = self.strip.len();
+            self.strip.push(t.left, t.m.left(), S::ON);
+            self.strip.push(t.left, t.m.left(), S::ON);
+            self.strip.parity = 0;
+            let (mut walk, at) = Walk::<L, R, M, S>::new(layout, records, view, &mut self.strip, self.reserve);
+            let at = walk.sub(at, t.apex, t.split, t.level, t.mask, S::new(&t.m));
+            match walk.finish(at) {
+                Some(c) => self.counters += c,
+                None => {
+                    self.overflow = true;
+                    claims.close();
+                    return;
+                }
+            }
+            self.segments.push(Segment { task: k, start, end: self.strip.len() });
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Segment {
+    task: usize,
+    start: usize,
+    end: usize,
 }
 
 /// Triangle count of the conforming bisection mesh whose inserted vertices are `vertices` (corners
@@ -914,6 +997,53 @@ mod tests {
                 - (b.y as i64 - a.y as i64) * (c.x as i64 - a.x as i64);
             assert!(cross < 0);
         }
+    }
+
+    /// The two-lane test answers as the one-vertex test, for vertices near and far, on and off
+    /// the sphere boundaries, at the largest coordinates, and for corrupt (NaN) records.
+    #[test]
+    fn the_pair_test_equals_the_single_test() {
+        let camera =
+            Camera::new(DVec3::new(5000.0, -300.0, 900.0), DVec3::new(5200.0, 4000.0, 0.0), DVec3::Z, 60.0, 1920, 1080)
+                .unwrap();
+        let options = RefineOptions::default();
+        let view = View::new(&camera, &options, Isotropic, [25.0, 31.5], [12800.0, 16000.0], [-50.0, 2500.0]);
+        let mut s = 7u64;
+        let mut rnd = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s >> 11
+        };
+        let single = |(x, y): (u32, u32), rec: Record, level: u32| {
+            matches!(view.test::<false>(x, y, level, rec, 0), Test::Active { .. })
+        };
+        let mut seen = [0usize; 2];
+        for k in 0..200_000u64 {
+            let pos = |r: u64| -> (u32, u32) {
+                match k % 4 {
+                    // The largest coordinates (the bias into i32 must be exact).
+                    0 => (u32::MAX - (r % 7) as u32, (1u32 << 31) + (r % 5) as u32),
+                    _ => ((r % 1025) as u32, ((r >> 20) % 1025) as u32),
+                }
+            };
+            let (l, r) = (pos(rnd()), pos(rnd()));
+            let rec = |v: u64| {
+                let z = (v % 2600) as f32 - 50.0;
+                let error = ((v >> 12) % 4000) as f32 * 0.05;
+                let radius = ((v >> 24) % 3000) as f32;
+                match v % 97 {
+                    0 => Record { z, error: f32::NAN, radius },
+                    1 => Record { z: f32::NAN, error, radius },
+                    _ => Record { z, error, radius },
+                }
+            };
+            let (rl, rr) = (rec(rnd()), rec(rnd()));
+            let level = (rnd() % 40) as u32;
+            let want = (single(l, rl, level), single(r, rr, level));
+            assert_eq!(view.active_pair(l, r, rl, rr, level), want, "{l:?} {rl:?} / {r:?} {rr:?} at level {level}");
+            seen[want.0 as usize] += 1;
+        }
+        // Both answers occur often enough for the comparison to mean something.
+        assert!(seen[0] > 10_000 && seen[1] > 10_000, "{seen:?}");
     }
 
     #[test]
