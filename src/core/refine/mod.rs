@@ -629,33 +629,27 @@ impl Refiner {
             }
         });
         let parallel = self.pool.is_some() && grid.levels() >= 8 && self.last_len >= self.parallel_min_len;
-        // The walk writes into reserved room (see `walk::Out`); in the rare frame whose strip
-        // outgrows it, it is refined again with twice the room.
+        // Room for the previous frame's strip and half again, so the walk rarely grows it.
         let last = if self.last_len == usize::MAX { 0 } else { self.last_len };
-        let mut reserve = last.saturating_add(last / 2).max(1024);
-        loop {
-            strip.seed(sv(sw), corners[0].1, S::ON);
-            let counters = if parallel {
-                self.refine_parallel::<L, R, M, S>(layout, records, view, strip, &roots, &corners, reserve)
-            } else {
-                let (mut walk, mut at) = Walk::<L, R, M, S>::new(layout, records, view, strip, reserve);
-                for (k, t) in roots.iter().enumerate() {
-                    at = walk.sub(at, t.apex, t.split, t.level, t.mask, S::new(&t.m));
-                    if k < 3 {
-                        let (v, m) = corners[k + 1];
-                        at = walk.append(at, sv(v), 1, m);
-                    }
+        let reserve = last.saturating_add(last / 2).max(1024);
+        strip.seed(sv(sw), corners[0].1, S::ON);
+        let counters = if parallel {
+            self.refine_parallel::<L, R, M, S>(layout, records, view, strip, &roots, &corners, reserve)
+        } else {
+            let (mut walk, mut at) = Walk::<L, R, M, S>::new(layout, records, view, strip, reserve);
+            for (k, t) in roots.iter().enumerate() {
+                at = walk.sub(at, t.apex, t.split, t.level, t.mask, S::new(&t.m));
+                if k < 3 {
+                    let (v, m) = corners[k + 1];
+                    at = walk.append(at, sv(v), 1, m);
                 }
-                walk.finish(at)
-            };
-            if let Some(counters) = counters {
-                strip.parity = (strip.len() % 2) as u8;
-                strip.push(sv(sw), corners[0].1, S::ON);
-                self.last_len = strip.len();
-                return counters;
             }
-            reserve = reserve.saturating_mul(2).max(strip.vertices.capacity());
-        }
+            walk.finish(at)
+        };
+        strip.parity = (strip.len() % 2) as u8;
+        strip.push(sv(sw), corners[0].1, S::ON);
+        self.last_len = strip.len();
+        counters
     }
 
     /// Expands the top of the recursion breadth-first (keeping strip order) until there are enough
@@ -672,7 +666,7 @@ impl Refiner {
         roots: &[Task; 4],
         corners: &[(Vertex, Morph); 4],
         reserve: usize,
-    ) -> Option<RefineCounters> {
+    ) -> RefineCounters {
         let mut counters = RefineCounters::default();
         self.items.clear();
         self.tasks.clear();
@@ -752,7 +746,6 @@ impl Refiner {
         let backs = &mut self.backs[..workers];
         let pool = self.pool.as_ref().expect("parallel refinement has a pool");
         let mut resume = items.len();
-        let mut front_ok = true;
         pool.in_place_scope(|scope| {
             for back in backs.iter_mut() {
                 let claims = &claims;
@@ -772,18 +765,8 @@ impl Refiner {
                     }
                 }
             }
-            match walk.finish(at) {
-                Some(c) => counters += c,
-                None => {
-                    // Out of room: stop the workers early too; the frame is refined again.
-                    front_ok = false;
-                    claims.close();
-                }
-            }
+            counters += walk.finish(at);
         });
-        if !front_ok || self.backs[..workers].iter().any(|b| b.overflow) {
-            return None;
-        }
         strip.parity = (strip.len() % 2) as u8;
 
         if resume < items.len() {
@@ -813,7 +796,7 @@ impl Refiner {
                 counters += back.counters;
             }
         }
-        Some(counters)
+        counters
     }
 }
 
@@ -854,12 +837,6 @@ impl Claims {
         self.0.fetch_update(Relaxed, Relaxed, |w| ((w >> 32) < (w & 0xffff_ffff)).then(|| w + (1 << 32))).is_ok()
     }
 
-    /// Leaves nothing more to claim.
-    fn close(&self) {
-        use std::sync::atomic::Ordering::Relaxed;
-        let _ = self.0.fetch_update(Relaxed, Relaxed, |w| Some((w & 0xffff_ffff) << 32 | (w & 0xffff_ffff)));
-    }
-
     /// Claims the last unclaimed task, for a worker.
     fn back(&self) -> Option<usize> {
         use std::sync::atomic::Ordering::Relaxed;
@@ -877,9 +854,6 @@ struct Back {
     strip: Strip,
     segments: Vec<Segment>,
     counters: RefineCounters,
-    /// A task ran out of room; the frame is refined again (with `reserve` doubled).
-    overflow: bool,
-    reserve: usize,
 }
 
 impl Back {
@@ -892,15 +866,10 @@ impl Back {
         tasks: &[Task],
         claims: &Claims,
     ) {
-        if self.overflow {
-            self.reserve = self.reserve.saturating_mul(2).max(self.strip.vertices.capacity());
-        }
-        self.reserve = self.reserve.max(1024);
         self.strip.vertices.clear();
         self.strip.morph.clear();
         self.segments.clear();
         self.counters = RefineCounters::default();
-        self.overflow = false;
         while let Some(k) = claims.back() {
             let t = &tasks[k];
             if self.strip.len() % 2 == 1 {
@@ -912,16 +881,9 @@ impl Back {
             self.strip.push(t.left, t.m.left(), S::ON);
             self.strip.push(t.left, t.m.left(), S::ON);
             self.strip.parity = 0;
-            let (mut walk, at) = Walk::<L, R, M, S>::new(layout, records, view, &mut self.strip, self.reserve);
+            let (mut walk, at) = Walk::<L, R, M, S>::new(layout, records, view, &mut self.strip, 0);
             let at = walk.sub(at, t.apex, t.split, t.level, t.mask, S::new(&t.m));
-            match walk.finish(at) {
-                Some(c) => self.counters += c,
-                None => {
-                    self.overflow = true;
-                    claims.close();
-                    return;
-                }
-            }
+            self.counters += walk.finish(at);
             self.segments.push(Segment { task: k, start, end: self.strip.len() });
         }
     }

@@ -153,8 +153,9 @@ fn split_keys<const ODD_SPLIT: bool>(a: u64, s: u64) -> [u64; 2] {
 ///
 /// Invariant while the walk runs: `base + 2 ≤ at ≤ end`, `[base, at)` initialised, `end` the end
 /// of `vertices`' allocation, and nothing else touches `vertices` (it is borrowed mutably for the
-/// walk's lifetime). A vertex that does not fit is dropped and `overflow` set; the caller then
-/// grows the strip and refines again.
+/// walk's lifetime). The cursor is used linearly (every call returns the one its caller goes on
+/// with; no caller keeps an older one), so when the room runs out the vector grows and the cursor
+/// is moved to the new allocation ([`Out::grow`]).
 pub(super) struct Out<'a> {
     vertices: &'a mut Vec<StripVertex>,
     morph: &'a mut Vec<Morph>,
@@ -162,7 +163,6 @@ pub(super) struct Out<'a> {
     end: *mut StripVertex,
     /// Bit 3 of `base`'s address: the length's parity is bit 3 of the cursor XOR this.
     flip: usize,
-    pub overflow: bool,
 }
 
 /// A cursor into [`Out`].
@@ -180,7 +180,26 @@ impl<'a> Out<'a> {
         // SAFETY: `len` and `capacity` are within (or one past the end of) the allocation.
         let (at, end) = unsafe { (base.add(len), base.add(vertices.capacity())) };
         let flip = base as usize & 8;
-        (Out { vertices, morph: &mut strip.morph, base, end, flip, overflow: false }, at)
+        (Out { vertices, morph: &mut strip.morph, base, end, flip }, at)
+    }
+
+    /// Doubles the room: the vertices written so far move with the vector; returns the cursor at
+    /// the same length in the new allocation.
+    #[cold]
+    #[inline(never)]
+    fn grow(&mut self, at: At) -> At {
+        // SAFETY: `[base, at)` is initialised and `at` lies in the allocation (the invariant), so
+        // the length is right; `reserve` keeps those elements and gives a fresh allocation, from
+        // which the new pointers are taken.
+        unsafe {
+            let len = at.offset_from(self.base) as usize;
+            self.vertices.set_len(len);
+            self.vertices.reserve(len.max(64));
+            self.base = self.vertices.as_mut_ptr();
+            self.end = self.base.add(self.vertices.capacity());
+            self.flip = self.base as usize & 8;
+            self.base.add(len)
+        }
     }
 
     /// Ends the walk at `at`: the strip's length becomes what was written.
@@ -196,10 +215,7 @@ impl<'a> Out<'a> {
 
     #[inline(always)]
     fn put(&mut self, at: At, v: StripVertex) -> At {
-        if at == self.end {
-            self.overflow = true;
-            return at;
-        }
+        let at = if at == self.end { self.grow(at) } else { at };
         // SAFETY: `base + 2 ≤ at < end`: inside the allocation, past the initialised part.
         unsafe {
             at.write(v);
@@ -255,19 +271,18 @@ pub(super) struct Walk<'a, L, R: ?Sized, M: ErrorMetric, S: Carry> {
 }
 
 impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a, L, R, M, S> {
-    /// A walk appending to `strip` (seeded), with room reserved for `reserve` more vertices.
+    /// A walk appending to `strip` (seeded), with room reserved for `reserve` more vertices (it
+    /// grows when that is not enough).
     pub fn new(layout: &'a L, records: &'a R, view: &'a View<M>, strip: &'a mut Strip, reserve: usize) -> (Self, At) {
         let (out, at) = Out::new(strip, reserve);
         (Walk { layout, records, view, out, counters: RefineCounters::default(), carry: Default::default() }, at)
     }
 
-    /// Ends the walk at `at`: the counts, or `None` when the strip ran out of room (the strip is
-    /// then incomplete and must be refined again with more).
-    pub fn finish(self, at: At) -> Option<RefineCounters> {
-        let overflow = self.out.overflow;
+    /// Ends the walk at `at`, the strip's length set to what was written; the counts.
+    pub fn finish(self, at: At) -> RefineCounters {
         let len = self.out.finish(at);
-        debug_assert!(overflow || len >= 2);
-        (!overflow).then_some(self.counters)
+        debug_assert!(len >= 2);
+        self.counters
     }
 
     /// Appends a vertex (outside the recursion: corners, the parallel split's own vertices).
