@@ -1,0 +1,50 @@
+#!/usr/bin/env python3
+"""Refinement before/after for BENCHMARKS.md: the median `relief refine` time per terrain file,
+two builds of relief run in turn on each view (so that both see the same machine), 1 and 2 threads.
+
+    tools/bench_refine_ab.py OLD_RELIEF NEW_RELIEF FILE.relief... > table.md
+
+Views: the 12 low oblique views of tools/bench_refine.py, tau = 1 px, culling on, --repeat 15.
+Per view and binary: the median of the repeats; per file: the median over the views, and the
+2-thread speed-up as the median over views of (1-thread time / 2-thread time). Stops if the two
+builds give different triangle counts or strip lengths for a view.
+"""
+import json, math, statistics, subprocess, sys, time
+
+def run(b, args):
+    out = subprocess.run([b] + args + ["--json"], check=True, capture_output=True, text=True)
+    return json.loads(out.stdout)
+
+def views(info, count=12):
+    ex, ey = info["extent_m"]
+    size = max(ex, ey)
+    cx, cy = ex / 2, ey / 2
+    zmax, zmin = info["z_max"], info["z_min"]
+    for k in range(count):
+        a = 2 * math.pi * k / count
+        eye = (cx + 0.35 * ex * math.cos(a), cy + 0.35 * ey * math.sin(a), zmax + 0.02 * size)
+        look = (cx - 0.2 * ex * math.cos(a), cy - 0.2 * ey * math.sin(a), zmin)
+        yield ",".join(f"{v:.3f}" for v in eye), ",".join(f"{v:.3f}" for v in look)
+
+old, new = sys.argv[1], sys.argv[2]
+repeat = 15
+print(f"Run {time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())}, load {open('/proc/loadavg').read().split()[:3]}")
+print("| terrain | layout | median triangles | old 1-thread ms | new 1-thread ms | old/new | old 2-thread speed-up | new 2-thread speed-up |")
+print("|---|---|---:|---:|---:|---:|---:|---:|")
+for f in sys.argv[3:]:
+    info = run(new, ["info", f])
+    o1, n1, o2, n2, tris = [], [], [], [], []
+    for eye, look in views(info):
+        base = ["refine", f, "--eye", eye, "--look", look, "--tolerance", "1", "--repeat", str(repeat)]
+        ro1 = run(old, base + ["--threads", "1"]); rn1 = run(new, base + ["--threads", "1"])
+        ro2 = run(old, base + ["--threads", "2"]); rn2 = run(new, base + ["--threads", "2"])
+        assert ro1["triangles"] == rn1["triangles"] == rn2["triangles"] == ro2["triangles"], (f, eye)
+        assert ro1["strip_len"] == rn1["strip_len"], (f, eye, ro1["strip_len"], rn1["strip_len"])
+        o1.append(ro1["refine_ms"]); n1.append(rn1["refine_ms"]); o2.append(ro2["refine_ms"]); n2.append(rn2["refine_ms"])
+        tris.append(rn1["triangles"])
+    name = f.split("/")[-1].split(".")[0]
+    mo, mn = statistics.median(o1), statistics.median(n1)
+    so = statistics.median([a / b for a, b in zip(o1, o2)])
+    sn = statistics.median([a / b for a, b in zip(n1, n2)])
+    print(f"| {name} | {info['layout']} | {int(statistics.median(tris))} | {mo:.3f} | {mn:.3f} | {mo/mn:.2f} | {so:.2f} | {sn:.2f} |")
+    sys.stdout.flush()
