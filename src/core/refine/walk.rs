@@ -172,7 +172,10 @@ impl<'a> Out<'a> {
     /// Writes after `strip`'s vertices (at least two, its seed, with parity == length mod 2),
     /// with room for `reserve` more.
     fn new(strip: &'a mut Strip, reserve: usize) -> (Out<'a>, At) {
-        debug_assert!(strip.vertices.len() >= 2 && strip.parity as usize == strip.vertices.len() % 2);
+        // The cursor reads the two vertices behind it: a seed must be there (checked always, as
+        // the reads would otherwise leave the allocation).
+        assert!(strip.vertices.len() >= 2, "a walk needs a seeded strip");
+        debug_assert_eq!(strip.parity as usize, strip.vertices.len() % 2);
         let vertices = &mut strip.vertices;
         vertices.reserve(reserve.max(64));
         let len = vertices.len();
