@@ -9,22 +9,12 @@ Per view and binary: the median of the repeats; per file: the median over the vi
 2-thread speed-up as the median over views of (1-thread time / 2-thread time). Stops if the two
 builds give different triangle counts or strip lengths for a view.
 """
-import json, math, statistics, subprocess, sys, time
+import statistics
+import sys
+import time
 
-def run(b, args):
-    out = subprocess.run([b] + args + ["--json"], check=True, capture_output=True, text=True)
-    return json.loads(out.stdout)
-
-def views(info, count=12):
-    ex, ey = info["extent_m"]
-    size = max(ex, ey)
-    cx, cy = ex / 2, ey / 2
-    zmax, zmin = info["z_max"], info["z_min"]
-    for k in range(count):
-        a = 2 * math.pi * k / count
-        eye = (cx + 0.35 * ex * math.cos(a), cy + 0.35 * ey * math.sin(a), zmax + 0.02 * size)
-        look = (cx - 0.2 * ex * math.cos(a), cy - 0.2 * ey * math.sin(a), zmin)
-        yield ",".join(f"{v:.3f}" for v in eye), ",".join(f"{v:.3f}" for v in look)
+# The same views and the same `relief … --json` runner as the one-build tables.
+from bench_refine import run, views
 
 old, new = sys.argv[1], sys.argv[2]
 repeat = 15
@@ -34,7 +24,7 @@ print("|---|---|---:|---:|---:|---:|---:|---:|")
 for f in sys.argv[3:]:
     info = run(new, ["info", f])
     o1, n1, o2, n2, tris = [], [], [], [], []
-    for eye, look in views(info):
+    for eye, look in views(info, 12):
         base = ["refine", f, "--eye", eye, "--look", look, "--tolerance", "1", "--repeat", str(repeat)]
         ro1 = run(old, base + ["--threads", "1"]); rn1 = run(new, base + ["--threads", "1"])
         ro2 = run(old, base + ["--threads", "2"]); rn2 = run(new, base + ["--threads", "2"])

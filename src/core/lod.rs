@@ -63,20 +63,8 @@ impl<M: ErrorMetric> Lod<M> {
         if !active {
             return Test::Inactive;
         }
-        if CULL {
-            self.cull(rel, radius, mask)
-        } else {
-            Test::Active { mask }
-        }
-    }
-
-    /// The culling half of [`Self::test`] for a sphere whose error asks for refinement:
-    /// `Culled` if it lies wholly outside a plane in `mask`, else `Active` with the planes it
-    /// is not yet known to be inside of.
-    #[inline(always)]
-    pub fn cull(&self, rel: DVec3, radius: f64, mask: u8) -> Test {
         let mut mask = mask;
-        if mask != 0 {
+        if CULL && mask != 0 {
             for (k, n) in self.normals.iter().enumerate() {
                 let bit = 1u8 << k;
                 if mask & bit != 0 {

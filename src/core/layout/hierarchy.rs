@@ -218,22 +218,45 @@ pub fn split_children(apex: (u32, u32), split: (u32, u32)) -> [(u32, u32); 2] {
     [(left.0 as u32, left.1 as u32), (right.0 as u32, right.1 as u32)]
 }
 
+/// A grid position as one word, `x` in the low half (as refinement carries vertices).
+#[inline(always)]
+pub fn pack(x: u32, y: u32) -> u64 {
+    x as u64 | (y as u64) << 32
+}
+
+/// The inverse of [`pack`].
+#[inline(always)]
+pub fn unpack(k: u64) -> (u32, u32) {
+    (k as u32, (k >> 32) as u32)
+}
+
 /// [`split_children`] when the split vertex's level is known (as it is during refinement): the
 /// sign that [`split_children`] finds by looking at `apex − split` follows from the level's parity
 /// instead (an edge midpoint, odd level, sees an axis-aligned `d`). `split_level` must be ≥ 2.
-/// Integer halving is exact here: both components of `d ± rot(d)` are even above level 1.
 #[inline(always)]
 pub fn split_children_at(apex: (u32, u32), split: (u32, u32), split_level: u32) -> [(u32, u32); 2] {
-    let (sx, sy) = (split.0 as i64, split.1 as i64);
-    let (dx, dy) = (apex.0 as i64 - sx, apex.1 as i64 - sy);
+    let (a, s) = (pack(apex.0, apex.1), pack(split.0, split.1));
+    let [l, r] =
+        if split_level & 1 == 1 { split_children_packed::<true>(a, s) } else { split_children_packed::<false>(a, s) };
+    [unpack(l), unpack(r)]
+}
+
+/// [`split_children_at`] on [`pack`]ed positions, `ODD_SPLIT` saying that the split vertex's
+/// level is odd. With `d = apex − split` and `rot(d) = (−dy, dx)` the children are
+/// `split + (d ± rot d)/2`: integer halving is exact (both components of `d ± rot(d)` are even
+/// above level 1), and the packed sums are exact because every component stays in `0..2³²`.
+#[inline(always)]
+pub fn split_children_packed<const ODD_SPLIT: bool>(apex: u64, split: u64) -> [u64; 2] {
+    let d = apex.wrapping_sub(split) as i64;
+    let dx = d as i32 as i64;
+    let dy = (d - dx) >> 32;
     let (p, q) = ((dx - dy) >> 1, (dx + dy) >> 1);
-    // `a` = split + (d + rot d)/2, `b` = split + (d − rot d)/2, with rot(d) = (−dy, dx).
-    let a = ((sx + p) as u32, (sy + q) as u32);
-    let b = ((sx + q) as u32, (sy - p) as u32);
-    if split_level & 1 == 1 {
-        [a, b]
+    let plus = split.wrapping_add(p.wrapping_add(q << 32) as u64); // split + (d + rot d)/2
+    let minus = split.wrapping_add(q.wrapping_sub(p << 32) as u64); // split + (d − rot d)/2
+    if ODD_SPLIT {
+        [plus, minus]
     } else {
-        [b, a]
+        [minus, plus]
     }
 }
 

@@ -293,13 +293,6 @@ impl<M: ErrorMetric> View<M> {
         self.lod.test::<CULL>(rel, rec.error as f64, r, mask)
     }
 
-    /// The culling half of [`Self::test`], for a vertex whose error asks for refinement.
-    #[inline(always)]
-    pub(crate) fn cull(&self, x: u32, y: u32, level: u32, rec: Record, mask: u8) -> Test {
-        let rel = self.position(x, y, rec.z) - self.lod.eye;
-        self.lod.cull(rel, rec.radius as f64 + self.slack(level), mask)
-    }
-
     /// [`Self::test`] without culling for two vertices of one level at once, for a Euclidean
     /// metric: whether each is active. The same operations in the same order as the one-vertex
     /// test, in two lanes, so the same answers (a test compares them).

@@ -5,7 +5,7 @@
 //! What makes it fast (ARCHITECTURE.md, "Refinement"):
 //! - A vertex is two words in registers: its grid position packed as `x | y << 32` (a strip
 //!   vertex as it is written, and enough to get the children by integer arithmetic,
-//!   [`split_keys`]) and its record index. Children come from the level's parity (compile-time:
+//!   [`crate::layout::hierarchy::split_children_packed`]) and its record index. Children come from the level's parity (compile-time:
 //!   odd and even levels are separate monomorphs, the even one inlined into the odd one, so one
 //!   call refines two levels) and the layout's index shortcut.
 //! - Each child is tested by its parent, so only active vertices recurse.
@@ -16,6 +16,7 @@
 //!   cursor's own (the strip keeps parity == length mod 2).
 
 use crate::format::terrain::Record;
+use crate::layout::hierarchy::{pack, split_children_packed, unpack};
 use crate::layout::{Layout, Vertex};
 use crate::lod::Test;
 use crate::refine::metric::ErrorMetric;
@@ -117,35 +118,10 @@ impl Carry for MorphTri {
     }
 }
 
-/// A grid position as one word, `x` in the low half.
-#[inline(always)]
-pub(super) fn key(x: u32, y: u32) -> u64 {
-    x as u64 | (y as u64) << 32
-}
-
 #[inline(always)]
 fn unkey(k: u64) -> StripVertex {
-    StripVertex { x: k as u32, y: (k >> 32) as u32 }
-}
-
-/// [`crate::layout::hierarchy::split_children_at`] on packed positions: the two DAG children of
-/// split vertex `s` on apex `a`'s side, left first, where `ODD_SPLIT` says that the split
-/// vertex's level is odd. With `d = a − s` and `rot(d) = (−dy, dx)` the children are
-/// `s + (d ± rot d)/2` (exact halving: both sums are even above level 1); the packed sums are
-/// exact because every component stays in `0..2³²`.
-#[inline(always)]
-fn split_keys<const ODD_SPLIT: bool>(a: u64, s: u64) -> [u64; 2] {
-    let d = a.wrapping_sub(s) as i64;
-    let dx = d as i32 as i64;
-    let dy = (d - dx) >> 32;
-    let (p, q) = ((dx - dy) >> 1, (dx + dy) >> 1);
-    let plus = s.wrapping_add(p.wrapping_add(q << 32) as u64); // s + (d + rot d)/2
-    let minus = s.wrapping_add(q.wrapping_sub(p << 32) as u64); // s + (d − rot d)/2
-    if ODD_SPLIT {
-        [plus, minus]
-    } else {
-        [minus, plus]
-    }
+    let (x, y) = unpack(k);
+    StripVertex { x, y }
 }
 
 /// Where the walk writes its strip vertices: a raw cursor `at` into `vertices`' capacity, passed
@@ -233,7 +209,7 @@ impl<'a> Out<'a> {
     fn append<S: Carry, const P: u8>(&mut self, at: At, v: u64, m: Morph) -> At {
         // SAFETY: `at ≥ base + 2` and `[base, at)` is initialised (the invariant).
         let (prev, last) = unsafe { (at.sub(2).read(), at.sub(1).read()) };
-        let (prev, last) = (key(prev.x, prev.y), key(last.x, last.y));
+        let (prev, last) = (pack(prev.x, prev.y), pack(last.x, last.y));
         if v == last || v == prev {
             return at;
         }
@@ -269,7 +245,7 @@ pub(super) struct Walk<'a, L, R: ?Sized, M: ErrorMetric, S: Carry> {
     records: &'a R,
     view: &'a View<M>,
     out: Out<'a>,
-    pub counters: RefineCounters,
+    counters: RefineCounters,
     carry: std::marker::PhantomData<S>,
 }
 
@@ -291,7 +267,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
     /// Appends a vertex (outside the recursion: corners, the parallel split's own vertices).
     #[inline(always)]
     pub fn append(&mut self, at: At, v: StripVertex, parity: u8, m: Morph) -> At {
-        self.out.append_any::<S>(at, key(v.x, v.y), parity, m)
+        self.out.append_any::<S>(at, pack(v.x, v.y), parity, m)
     }
 
     #[inline(always)]
@@ -312,11 +288,10 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
     }
 
     fn sub_mode<const MASKED: bool>(&mut self, at: At, i: Vertex, j: Vertex, l: u32, mask: u8, m: S) -> At {
-        let ik = key(i.x, i.y);
+        let (ik, jk) = (pack(i.x, i.y), pack(j.x, j.y));
         if l >= 2 {
             self.counters.visited += 1;
-            if let Some((mask, p)) = self.test::<MASKED>(key(j.x, j.y), j.index, l - 1, mask, &m) {
-                let jk = key(j.x, j.y);
+            if let Some((mask, p)) = self.test::<MASKED>(jk, j.index, l - 1, mask, &m) {
                 if l == 2 {
                     return self.finest(at, ik, jk, p, &m);
                 }
@@ -335,7 +310,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn side_any<const MASKED: bool>(&mut self, at: At, a: u64, ai: u64, c: Vertex, l: u32, mask: u8, m: S) -> At {
-        let ck = key(c.x, c.y);
+        let ck = pack(c.x, c.y);
         if l & 1 == 1 {
             self.side::<true, MASKED>(at, a, ai, ck, c.index, l, mask, m)
         } else {
@@ -451,8 +426,8 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
     ) -> At {
         let (l, mask) = (lm & 0xff, (lm >> 8) as u8);
         // The split vertex has level l − 1: odd when the triangle's level is even.
-        let [cl, cr] = if ODD { split_keys::<false>(a, s) } else { split_keys::<true>(a, s) };
-        let [il, ir] = self.layout.inner_child_indices(ai, si, split_xy(cl), split_xy(cr));
+        let [cl, cr] = if ODD { split_children_packed::<false>(a, s) } else { split_children_packed::<true>(a, s) };
+        let [il, ir] = self.layout.inner_child_indices(ai, si, unpack(cl), unpack(cr));
         if L::PREFETCH_GRANDCHILDREN && l >= 4 {
             // The grandchildren are read right after the children: start their loads now, so
             // that their latency overlaps the children's.
@@ -463,9 +438,13 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
                 }
                 None => {
                     for c in [cl, cr] {
-                        let g = if ODD { split_keys::<true>(s, c) } else { split_keys::<false>(s, c) };
+                        let g = if ODD {
+                            split_children_packed::<true>(s, c)
+                        } else {
+                            split_children_packed::<false>(s, c)
+                        };
                         for g in g {
-                            let (x, y) = split_xy(g);
+                            let (x, y) = unpack(g);
                             self.records.prefetch(self.layout.index(x, y));
                         }
                     }
@@ -487,34 +466,17 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
             }
         } else {
             let (rl, rr) = (self.records.record(il), self.records.record(ir));
-            let (on_l, on_r) = self.view.active_pair(split_xy(cl), split_xy(cr), rl, rr, l - 2);
-            let tl = if on_l { self.culled::<MASKED>(&left, cl, rl, l - 2, mask) } else { None };
-            let tr = if on_r { self.culled::<MASKED>(&right, cr, rr, l - 2, mask) } else { None };
+            let (on_l, on_r) = self.view.active_pair(unpack(cl), unpack(cr), rl, rr, l - 2);
+            let tl = on_l.then(|| (0, self.point(&left, cl, rl, l - 2)));
+            let tr = on_r.then(|| (0, self.point(&right, cr, rr, l - 2)));
             if ODD {
-                let at = self.enter::<false, MASKED>(at, s, si, cl, il, l - 1, tl, left);
+                let at = self.enter::<false, false>(at, s, si, cl, il, l - 1, tl, left);
                 let at = self.out.append::<S, 1>(at, a, m.apex());
-                self.enter::<false, MASKED>(at, s, si, cr, ir, l - 1, tr, right)
+                self.enter::<false, false>(at, s, si, cr, ir, l - 1, tr, right)
             } else {
-                let at = self.enter::<true, MASKED>(at, s, si, cl, il, l - 1, tl, left);
+                let at = self.enter::<true, false>(at, s, si, cl, il, l - 1, tl, left);
                 let at = self.out.append::<S, 0>(at, a, m.apex());
-                self.enter::<true, MASKED>(at, s, si, cr, ir, l - 1, tr, right)
-            }
-        }
-    }
-
-    /// The rest of the test of a vertex whose error asks for refinement: culled against the planes
-    /// in `mask` when `MASKED`; its children's mask and its morph point, unless culled.
-    #[inline(always)]
-    fn culled<const MASKED: bool>(&mut self, m: &S, c: u64, rec: Record, lc: u32, mask: u8) -> Option<(u8, S::Point)> {
-        if !MASKED {
-            return Some((0, self.point(m, c, rec, lc)));
-        }
-        let (x, y) = split_xy(c);
-        match self.view.cull(x, y, lc, rec, mask) {
-            Test::Active { mask } => Some((mask, self.point(m, c, rec, lc))),
-            _ => {
-                self.counters.culled += 1;
-                None
+                self.enter::<true, false>(at, s, si, cr, ir, l - 1, tr, right)
             }
         }
     }
@@ -523,7 +485,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
     #[inline(always)]
     fn point(&self, m: &S, c: u64, rec: Record, lc: u32) -> S::Point {
         if S::ON {
-            let (x, y) = split_xy(c);
+            let (x, y) = unpack(c);
             m.point(rec.z, self.view.blend(x, y, lc, rec))
         } else {
             m.point(0.0, 1.0)
@@ -555,7 +517,7 @@ pub(super) fn probe<const MASKED: bool, R: RecordSource + ?Sized, M: ErrorMetric
     counters: &mut RefineCounters,
 ) -> Option<(u8, S::Point)> {
     let rec: Record = records.record(index);
-    let (x, y) = split_xy(c);
+    let (x, y) = unpack(c);
     match view.test::<MASKED>(x, y, lc, rec, mask) {
         Test::Inactive => None,
         Test::Culled => {
@@ -580,15 +542,10 @@ pub(super) fn probe_vertex<R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
     counters: &mut RefineCounters,
 ) -> Option<(u8, S::Point)> {
     counters.visited += 1;
-    let k = key(v.x, v.y);
+    let k = pack(v.x, v.y);
     if mask != 0 {
         probe::<true, R, M, S>(records, view, k, v.index, lv, mask, m, counters)
     } else {
         probe::<false, R, M, S>(records, view, k, v.index, lv, 0, m, counters)
     }
-}
-
-#[inline(always)]
-fn split_xy(k: u64) -> (u32, u32) {
-    (k as u32, (k >> 32) as u32)
 }
