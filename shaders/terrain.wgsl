@@ -1,5 +1,6 @@
-// Terrain: strip vertices are grid posts; positions come from the resident heights, shading from
-// the full-resolution heights at each fragment, so a coarse mesh still shades sharply.
+// Terrain: strip vertices are grid posts; positions come from the resident heights (or from the
+// strip itself, which then carries them), shading from the full-resolution heights at each
+// fragment (or the finest the height cache holds there), so a coarse mesh still shades sharply.
 // Owner: src/render/terrain.rs (uniform layout `FrameUniform`, pipelines). CPU reference of the
 // fragment maths: src/render/shade.rs — keep the two in step.
 
@@ -25,16 +26,48 @@ struct Frame {
     wire_colour: vec4<f32>,
     // The DEM's own posts (x0, y0, x1, y1), inclusive; the rest of the grid is padding.
     valid_window: vec4<f32>,
+    // The height cache: (1 when heights come from it, else 0; tile cells per side T; levels; 0).
+    cache: vec4<u32>,
 };
 
 @group(0) @binding(0) var<uniform> frame: Frame;
+// The whole grid in tiles (resident), or the cache's pool of slots, one per layer.
 @group(0) @binding(1) var heights: texture_2d_array<f32>;
+// The cache's table (src/core/heightcache.rs): per level its first entry (0..16) and tiles per
+// side (16..32), then one entry per tile: 0 when absent, else slot + 1 | fade << 24.
+@group(0) @binding(2) var<storage, read> cache_table: array<u32>;
 
-// Height of post (x, y), metres; posts are clamped to the grid.
-fn post_height(x: i32, y: i32) -> f32 {
-    let last = i32(frame.posts) - 1;
-    let px = u32(clamp(x, 0, last));
-    let py = u32(clamp(y, 0, last));
+// Where a surface reads its posts: level `level` (every 2^level-th post), from the resident grid
+// (slot < 0) or from a cache slot whose texel (0, 0) is level post `origin`.
+struct Src {
+    level: u32,
+    slot: i32,
+    origin: vec2<i32>,
+};
+
+fn resident() -> Src {
+    var s: Src;
+    s.level = 0u;
+    s.slot = -1;
+    s.origin = vec2<i32>(0, 0);
+    return s;
+}
+
+// The last post index of the source's level.
+fn last_post(src: Src) -> i32 {
+    return i32((frame.posts - 1u) >> src.level);
+}
+
+// Height of post (x, y) of the source's level, metres; posts are clamped to the grid.
+fn post_height(src: Src, x: i32, y: i32) -> f32 {
+    let last = last_post(src);
+    let cx = clamp(x, 0, last);
+    let cy = clamp(y, 0, last);
+    if (src.slot >= 0) {
+        return textureLoad(heights, vec2<i32>(cx, cy) - src.origin, src.slot, 0).r;
+    }
+    let px = u32(cx);
+    let py = u32(cy);
     let tx = px / frame.tile_posts;
     let ty = py / frame.tile_posts;
     let layer = ty * frame.tiles_per_row + tx;
@@ -61,9 +94,10 @@ fn vertex_at(grid: vec2<u32>, z_m: f32, towards_eye: f32) -> VertexOut {
     return out;
 }
 
+// Heights from the resident grid (with the cache, strips always carry their heights).
 @vertex
 fn vs_terrain(@location(0) grid: vec2<u32>) -> VertexOut {
-    return vertex_at(grid, post_height(i32(grid.x), i32(grid.y)), 1.0);
+    return vertex_at(grid, post_height(resident(), i32(grid.x), i32(grid.y)), 1.0);
 }
 
 // Geomorphing: the refinement thread sends the blended height of each strip vertex.
@@ -75,7 +109,7 @@ fn vs_terrain_morph(@location(0) grid: vec2<u32>, @location(1) morph: vec2<f32>)
 // Wireframe: the same vertices pulled 0.2% towards the eye so lines win the depth test.
 @vertex
 fn vs_wire(@location(0) grid: vec2<u32>) -> VertexOut {
-    return vertex_at(grid, post_height(i32(grid.x), i32(grid.y)), 0.998);
+    return vertex_at(grid, post_height(resident(), i32(grid.x), i32(grid.y)), 0.998);
 }
 
 @vertex
@@ -83,15 +117,17 @@ fn vs_wire_morph(@location(0) grid: vec2<u32>, @location(1) morph: vec2<f32>) ->
     return vertex_at(grid, morph.y, 0.998);
 }
 
-// Unit normal at post (x, y) from central differences (one-sided at the border).
-fn post_normal(x: i32, y: i32) -> vec3<f32> {
-    let last = i32(frame.posts) - 1;
+// Unit normal at post (x, y) of the source's level from central differences (one-sided at the
+// border).
+fn post_normal(src: Src, x: i32, y: i32) -> vec3<f32> {
+    let last = last_post(src);
     let x0 = max(x - 1, 0);
     let x1 = min(x + 1, last);
     let y0 = max(y - 1, 0);
     let y1 = min(y + 1, last);
-    let dz_dx = (post_height(x1, y) - post_height(x0, y)) / (f32(x1 - x0) * frame.world_from_grid.x);
-    let dz_dy = (post_height(x, y1) - post_height(x, y0)) / (f32(y1 - y0) * frame.world_from_grid.y);
+    let step = f32(1u << src.level);
+    let dz_dx = (post_height(src, x1, y) - post_height(src, x0, y)) / (f32(x1 - x0) * step * frame.world_from_grid.x);
+    let dz_dy = (post_height(src, x, y1) - post_height(src, x, y0)) / (f32(y1 - y0) * step * frame.world_from_grid.y);
     return normalize(vec3<f32>(-dz_dx, -dz_dy, 1.0));
 }
 
@@ -100,27 +136,87 @@ struct Surface {
     normal: vec3<f32>,
 };
 
-// Bilinear height and normal at a grid position: the full-resolution surface under the fragment.
-fn surface_at(grid: vec2<f32>) -> Surface {
-    let last = f32(frame.posts - 1u);
-    let g = clamp(grid, vec2<f32>(0.0), vec2<f32>(last));
+// The source's level's cell under a grid position (level-0 posts): its lower-left post.
+fn cell_at(src: Src, grid: vec2<f32>) -> vec2<f32> {
+    let last = f32(last_post(src));
+    let g = clamp(grid / f32(1u << src.level), vec2<f32>(0.0), vec2<f32>(last));
+    return min(floor(g), vec2<f32>(last - 1.0));
+}
+
+// Bilinear height and normal at a grid position from the source's posts: the full-resolution
+// surface under the fragment when the source is level 0.
+fn surface_at(src: Src, grid: vec2<f32>) -> Surface {
+    let last = f32(last_post(src));
+    let g = clamp(grid / f32(1u << src.level), vec2<f32>(0.0), vec2<f32>(last));
     let base = min(floor(g), vec2<f32>(last - 1.0));
     let f = g - base;
     let x = i32(base.x);
     let y = i32(base.y);
     let h = mix(
-        mix(post_height(x, y), post_height(x + 1, y), f.x),
-        mix(post_height(x, y + 1), post_height(x + 1, y + 1), f.x),
+        mix(post_height(src, x, y), post_height(src, x + 1, y), f.x),
+        mix(post_height(src, x, y + 1), post_height(src, x + 1, y + 1), f.x),
         f.y,
     );
     let n = mix(
-        mix(post_normal(x, y), post_normal(x + 1, y), f.x),
-        mix(post_normal(x, y + 1), post_normal(x + 1, y + 1), f.x),
+        mix(post_normal(src, x, y), post_normal(src, x + 1, y), f.x),
+        mix(post_normal(src, x, y + 1), post_normal(src, x + 1, y + 1), f.x),
         f.y,
     );
     var s: Surface;
     s.height_m = h;
     s.normal = normalize(n);
+    return s;
+}
+
+// The cached tile of level k under a grid position: its source and its table entry.
+struct Cached {
+    src: Src,
+    entry: u32,
+};
+
+fn cached_at(grid: vec2<f32>, k: u32) -> Cached {
+    var c: Cached;
+    c.src.level = k;
+    let t = i32(frame.cache.y);
+    let tile = vec2<i32>(cell_at(c.src, grid)) / t;
+    c.entry = cache_table[32u + cache_table[k] + u32(tile.y) * cache_table[16u + k] + u32(tile.x)];
+    c.src.slot = i32(c.entry & 0xffffffu) - 1;
+    c.src.origin = tile * t - vec2<i32>(1, 1);
+    return c;
+}
+
+// The finest resident level at or above level k (the coarsest is always resident).
+fn finest_cached(grid: vec2<f32>, k: u32) -> Cached {
+    let levels = frame.cache.z;
+    var level = k;
+    var c = cached_at(grid, level);
+    loop {
+        if (c.entry != 0u || level + 1u >= levels) {
+            break;
+        }
+        level = level + 1u;
+        c = cached_at(grid, level);
+    }
+    // Slot 0 holds the coarsest tile; an absent entry there cannot happen, but stay in bounds.
+    c.src.slot = max(c.src.slot, 0);
+    return c;
+}
+
+// The surface under a fragment: the resident grid, or the finest cached level, blended with the
+// next coarser one while it fades in (so a tile's arrival is not a pop).
+fn surface(grid: vec2<f32>) -> Surface {
+    if (frame.cache.x == 0u) {
+        return surface_at(resident(), grid);
+    }
+    let fine = finest_cached(grid, 0u);
+    var s = surface_at(fine.src, grid);
+    let fade = f32(fine.entry >> 24u) / 255.0;
+    if (fade < 1.0 && fine.src.level + 1u < frame.cache.z) {
+        let coarse = finest_cached(grid, fine.src.level + 1u);
+        let c = surface_at(coarse.src, grid);
+        s.height_m = mix(c.height_m, s.height_m, fade);
+        s.normal = normalize(mix(c.normal, s.normal, fade));
+    }
     return s;
 }
 
@@ -172,7 +268,7 @@ fn fs_terrain(in: VertexOut) -> @location(0) vec4<f32> {
     if (outside_dem(in.grid)) {
         discard;
     }
-    return vec4<f32>(shade(surface_at(in.grid), in.rel), 1.0);
+    return vec4<f32>(shade(surface(in.grid), in.rel), 1.0);
 }
 
 @fragment
@@ -196,7 +292,7 @@ fn fs_probe(in: VertexOut) -> Probe {
     if (outside_dem(in.grid)) {
         discard;
     }
-    let s = surface_at(in.grid);
+    let s = surface(in.grid);
     var out: Probe;
     out.position = vec4<f32>(in.grid, s.height_m, in.rel.z + frame.eye_in_world.z);
     if (frame.flags == 1u) {

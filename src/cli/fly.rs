@@ -9,10 +9,11 @@ use relief::flight::frame::Presenter;
 use relief::flight::terrain::TerrainSource;
 use relief::format::terrain::{TerrainFile, RECORD_BYTES};
 use relief::pager::Access;
+use relief::refine::RefineOptions;
 use relief::render::{DrawStyle, Gpu, TerrainPresenter};
 use relief::window::{fly_window, WindowOptions};
 
-use super::{progress, AccessArgs, FlyArgs, RefineArgs};
+use super::{progress, AccessArgs, FlyArgs, GpuArgs, RefineArgs};
 
 /// Where refinement runs.
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -36,10 +37,13 @@ pub struct Args {
     pub refinement: Option<Refinement>,
     #[command(flatten)]
     pub access: AccessArgs,
+    #[command(flatten)]
+    pub gpu: GpuArgs,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let refine = a.refine.options()?;
+    let renderer = a.gpu.options()?;
     let flight = a.fly.check()?;
     let file = match a.file {
         Some(f) => f,
@@ -55,18 +59,22 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             wireframe: a.fly.wireframe,
             threads: a.refine.threads,
             sync: a.refinement == Some(Refinement::Sync),
+            renderer,
             progress: progress(a.fly.quiet),
         };
         fly_window(terrain, options)?;
         return Ok(ExitCode::SUCCESS);
     };
     let threaded = a.refinement == Some(Refinement::Thread);
-    let mut source = TerrainSource::new(terrain.clone(), refine, a.refine.threads, threaded)?;
     let gpu = if a.fly.no_render { None } else { Some(Gpu::headless()?) };
     let (w, h, style, quiet) = (a.fly.width, a.fly.height, DrawStyle { wireframe: a.fly.wireframe }, a.fly.quiet);
-    let presenter: Option<Box<dyn Presenter + '_>> = match &gpu {
-        Some(gpu) => Some(Box::new(TerrainPresenter::new(gpu, terrain, w, h, style, progress(quiet))?)),
+    let presenter = match &gpu {
+        Some(gpu) => Some(TerrainPresenter::new(gpu, terrain.clone(), w, h, style, renderer, progress(quiet))?),
         None => None,
     };
+    // With the height cache the strip carries its heights, computed on the refinement side.
+    let refine = RefineOptions { heights: presenter.as_ref().is_some_and(|p| p.renderer.cached()), ..refine };
+    let mut source = TerrainSource::new(terrain, refine, a.refine.threads, threaded)?;
+    let presenter = presenter.map(|p| Box::new(p) as Box<dyn Presenter + '_>);
     super::show::headless(&mut source, &file, &flight, (UpAxis::Z, refine.tolerance_px), &a.fly, presenter)
 }

@@ -133,6 +133,7 @@ impl RefineArgs {
             metric: self.metric,
             cull: !self.no_cull,
             morph_ratio: self.geomorph,
+            heights: false,
         })
     }
 }
@@ -168,6 +169,31 @@ impl ViewArgs {
             self.image.height,
         )?;
         Ok((camera, options))
+    }
+}
+
+/// GPU memory for a terrain's heights (`fly`, `render`).
+#[derive(Args)]
+pub struct GpuArgs {
+    /// GPU memory for heights: bytes with a binary K/M/G suffix (256M). A grid that fits stays
+    /// resident whole; a larger one is paged through a height cache of tiles within this budget
+    /// (vertices keep their exact heights; shading may use a coarser tile until the fine one
+    /// arrives) [default: 2G]
+    #[arg(long, value_name = "BYTES")]
+    pub gpu_memory: Option<String>,
+    /// Height cache: tile bytes sent to the GPU per frame at most (K/M/G suffix) [default: 16M]
+    #[arg(long, value_name = "BYTES")]
+    pub gpu_upload: Option<String>,
+}
+
+impl GpuArgs {
+    pub fn options(&self) -> anyhow::Result<relief::render::RendererOptions> {
+        let bytes = |flag: &str, s: &Option<String>| s.as_deref().map(|s| parse_bytes(flag, s)).transpose();
+        Ok(relief::render::RendererOptions {
+            gpu_memory: bytes("--gpu-memory", &self.gpu_memory)?,
+            upload_per_frame: bytes("--gpu-upload", &self.gpu_upload)?,
+            ..Default::default()
+        })
     }
 }
 

@@ -7,7 +7,7 @@ use std::sync::Arc;
 use relief::format::terrain::TerrainFile;
 use relief::render::{render_still, save_png, DrawStyle, Gpu};
 
-use super::{check_output_file, fmt_bytes, print_json, progress, ViewArgs};
+use super::{check_output_file, fmt_bytes, print_json, progress, GpuArgs, ViewArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -26,21 +26,25 @@ pub struct Args {
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub gpu: GpuArgs,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let (camera, options) = a.view.resolve()?;
+    let renderer = a.gpu.options()?;
     check_output_file("--out", &a.out)?;
     let f = Arc::new(TerrainFile::open(&a.file)?);
     let gpu = Gpu::headless()?;
     let style = DrawStyle { wireframe: a.wireframe };
-    let (image, r) = render_still(&gpu, f, &camera, &options, style, a.view.refine.threads, progress(a.quiet))?;
+    let (image, r) =
+        render_still(&gpu, f, &camera, &options, style, renderer, a.view.refine.threads, progress(a.quiet))?;
     save_png(&image, &a.out)?;
     if a.json {
         print_json(&r)?;
     } else {
         println!(
-            "{}: {} x {} px, {} triangles (strip {}), refine {:.2} ms, render {:.2} ms, {} uploaded this frame, heights {} on the GPU ({})",
+            "{}: {} x {} px, {} triangles (strip {}), refine {:.2} ms, render {:.2} ms, {} uploaded this frame, heights {} on the GPU{} ({})",
             a.out.display(),
             r.width,
             r.height,
@@ -50,6 +54,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             r.render_ms,
             fmt_bytes(r.upload_bytes),
             fmt_bytes(r.heights_gpu_bytes),
+            if r.height_cache { " (height cache)" } else { "" },
             r.adapter
         );
     }

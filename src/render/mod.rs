@@ -3,6 +3,7 @@
 //! `ARCHITECTURE.md` ("Rendering").
 
 pub mod gpu;
+pub mod height_cache;
 pub mod heights;
 pub mod mesh;
 pub mod mesh_shade;

@@ -11,12 +11,15 @@ use serde::Serialize;
 
 use super::mesh_shade::MeshShadeParams;
 use super::offscreen::OFFSCREEN_FORMAT;
-use super::{DrawStyle, FrameView, Gpu, MeshRenderer, MeshStyle, MeshView, Offscreen, TerrainRenderer};
+use super::{
+    DrawStyle, FrameView, Gpu, MeshRenderer, MeshStyle, MeshView, Offscreen, RendererOptions, TerrainRenderer,
+};
 use crate::camera::{Camera, UpAxis};
 use crate::error::{Error, Result};
 use crate::flight::frame::{Frame, FrameSource, Presenter};
 use crate::flight::terrain::TerrainSource;
 use crate::format::terrain::TerrainFile;
+use crate::heightcache::HeightCacheStats;
 use crate::mesh::Bounds;
 use crate::refine::RefineOptions;
 use crate::sys::progress::Progress;
@@ -45,18 +48,39 @@ pub struct TerrainPresenter<'g> {
 }
 
 impl<'g> TerrainPresenter<'g> {
-    /// Uploads `terrain`'s heights and makes a `width_px` × `height_px` target.
+    /// Uploads `terrain`'s heights (or starts its height cache, as `options` ask) and makes a
+    /// `width_px` × `height_px` target.
     pub fn new(
         gpu: &'g Gpu,
         terrain: Arc<TerrainFile>,
         width_px: u32,
         height_px: u32,
         style: DrawStyle,
+        options: RendererOptions,
         progress: Progress,
     ) -> Result<TerrainPresenter<'g>> {
         let target = Offscreen::new(gpu, width_px, height_px)?;
-        let renderer = TerrainRenderer::new(gpu, &terrain, OFFSCREEN_FORMAT, Default::default(), progress)?;
+        let renderer = TerrainRenderer::new(gpu, &terrain, OFFSCREEN_FORMAT, options, progress)?;
         Ok(TerrainPresenter { gpu, target, renderer, terrain, style })
+    }
+
+    /// Draws `strip` as `camera` sees it until the height cache holds, fully blended in, every
+    /// tile the strip wants that fits (at once without the cache): for stills and tests, which
+    /// may wait; a flight never does. Returns the bytes sent.
+    pub fn settle(&mut self, strip: &crate::refine::Strip, camera: &Camera) -> Result<u64> {
+        let mut bytes = self.present(Frame::Strip(strip), true, camera)?;
+        let started = Instant::now();
+        while self.renderer.height_cache().is_some_and(|c| !c.converged()) {
+            if started.elapsed().as_secs() > 600 {
+                return Err(Error::InvalidArgument("the height cache did not settle within 10 minutes".into()));
+            }
+            let sent = self.present(Frame::Strip(strip), false, camera)?;
+            if sent == 0 {
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+            bytes += sent;
+        }
+        Ok(bytes)
     }
 
     /// The last image drawn.
@@ -69,14 +93,15 @@ impl Presenter for TerrainPresenter<'_> {
     fn present(&mut self, frame: Frame<'_>, changed: bool, camera: &Camera) -> Result<u64> {
         let Frame::Strip(strip) = frame else { return Err(wrong_frame("terrain")) };
         let gpu = self.gpu;
-        let strip_bytes = if changed { self.renderer.upload_strip(gpu, strip) } else { 0 };
+        let strip_bytes = if changed { self.renderer.upload_strip(gpu, strip)? } else { 0 };
+        let height_bytes = self.renderer.sync_heights(gpu, camera, changed.then_some(strip))?;
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
         let view = FrameView::new(&self.terrain, *camera);
         let t = &self.target;
         let uniform_bytes = self.renderer.encode(gpu, &mut encoder, &t.colour_view, &t.depth_view, &view, self.style);
         gpu.queue.submit([encoder.finish()]);
         gpu.wait_idle()?;
-        Ok(strip_bytes + uniform_bytes)
+        Ok(strip_bytes + height_bytes + uniform_bytes)
     }
 
     fn save(&mut self, path: &Path) -> Result<()> {
@@ -89,6 +114,10 @@ impl Presenter for TerrainPresenter<'_> {
 
     fn resident_bytes(&self) -> u64 {
         self.renderer.heights_bytes()
+    }
+
+    fn heights(&self) -> HeightCacheStats {
+        self.renderer.height_stats()
     }
 }
 
@@ -207,9 +236,11 @@ pub struct StillReport {
     pub refine_ms: f64,
     pub render_ms: f64,
     /// CPU → GPU bytes of the frame: the strip and the frame uniform (the heights are uploaded
-    /// once, see `heights_gpu_bytes`).
+    /// once, see `heights_gpu_bytes`), and with the height cache the tiles the view wanted.
     pub upload_bytes: u64,
     pub heights_gpu_bytes: u64,
+    /// Whether heights came from the height cache (the grid exceeds `--gpu-memory`).
+    pub height_cache: bool,
     pub width: u32,
     pub height: u32,
     pub adapter: String,
@@ -222,15 +253,17 @@ pub fn render_still(
     camera: &Camera,
     refine: &RefineOptions,
     style: DrawStyle,
+    renderer: RendererOptions,
     threads: usize,
     progress: Progress,
 ) -> Result<(image::RgbaImage, StillReport)> {
     let mut presenter =
-        TerrainPresenter::new(gpu, terrain.clone(), camera.width_px, camera.height_px, style, progress)?;
-    let mut source = TerrainSource::new(terrain, *refine, threads, false)?;
+        TerrainPresenter::new(gpu, terrain.clone(), camera.width_px, camera.height_px, style, renderer, progress)?;
+    let refine = RefineOptions { heights: presenter.renderer.cached(), ..*refine };
+    let mut source = TerrainSource::new(terrain, refine, threads, false)?;
     let stats = source.update(camera, refine.tolerance_px)?;
     let t0 = Instant::now();
-    let upload_bytes = presenter.present(source.frame(), true, camera)?;
+    let upload_bytes = presenter.settle(source.strip(), camera)?;
     let render_ms = t0.elapsed().as_secs_f64() * 1e3;
     let image = presenter.image()?;
     let report = StillReport {
@@ -240,6 +273,7 @@ pub fn render_still(
         render_ms,
         upload_bytes,
         heights_gpu_bytes: presenter.renderer.heights_bytes(),
+        height_cache: presenter.renderer.cached(),
         width: camera.width_px,
         height: camera.height_px,
         adapter: gpu.describe(),

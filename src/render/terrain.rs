@@ -2,17 +2,21 @@
 //! the pipelines (terrain, geomorphed terrain, wireframe, sky, and the probe used by tests).
 //!
 //! Per refinement update only the strip is uploaded: 8 bytes per vertex (grid x, y as `u32`), plus
-//! 8 more with geomorphing (blend, morphed height). Per frame a 240-byte uniform follows the
+//! 8 more with geomorphing (blend, morphed height). Per frame a 256-byte uniform follows the
 //! camera. Positions are built in the vertex shader from the heights texture; the fragment shader
 //! shades from the full-resolution heights (CPU reference: `render::shade`).
+
+use std::sync::Arc;
 
 use glam::DVec3;
 
 use crate::camera::Camera;
 use crate::error::Result;
 use crate::format::terrain::TerrainFile;
+use crate::heightcache::{CacheBudget, HeightCacheStats, WantView, DEFAULT_TILE_CELLS};
 use crate::refine::{Morph, Strip, StripVertex};
 use crate::render::gpu::Gpu;
+use crate::render::height_cache::{GpuHeightCache, DEFAULT_GPU_MEMORY, DEFAULT_UPLOAD_PER_FRAME};
 use crate::render::heights::{GpuHeights, HeightTiling};
 use crate::render::offscreen::{depth_clear, frame_pass};
 use crate::render::pipeline::{build_pipeline, depth_state, uniform_entry, PipelineSpec};
@@ -53,6 +57,7 @@ pub struct FrameUniform {
     flags: u32,
     wire_colour: [f32; 4],
     valid_window: [f32; 4],
+    cache: [u32; 4],
 }
 
 /// What the probe pass writes to its second target (the first always holds grid x, grid y,
@@ -94,11 +99,31 @@ impl FrameView {
 pub struct RendererOptions {
     /// Force a heights tile size (posts per side); default: the least memory within the limits.
     pub tile_posts: Option<u32>,
+    /// GPU memory for heights, bytes: the whole grid stays resident when it fits, else the height
+    /// cache keeps within this. Default [`DEFAULT_GPU_MEMORY`].
+    pub gpu_memory: Option<u64>,
+    /// Height-tile bytes sent to the GPU per frame at most (cache only). Default
+    /// [`DEFAULT_UPLOAD_PER_FRAME`].
+    pub upload_per_frame: Option<u64>,
+    /// The cache's tile side in cells (a power of two). Default [`DEFAULT_TILE_CELLS`].
+    pub cache_tile_cells: Option<u32>,
+}
+
+/// Where the shaders read heights from.
+enum Heights {
+    /// The whole grid, uploaded once.
+    Resident(GpuHeights),
+    /// Tiles paged in as the strip asks (the strip carries its own heights).
+    Cached { pool: Box<GpuHeightCache>, terrain: Arc<TerrainFile>, tiling: HeightTiling },
 }
 
 /// Renders strips of one terrain.
 pub struct TerrainRenderer {
-    heights: GpuHeights,
+    heights: Heights,
+    /// Exact heights computed here for a strip that came without them (cache only).
+    own_morph: Vec<Morph>,
+    /// Bytes of height tiles and table sent by the last [`Self::sync_heights`].
+    last_heights_upload: u64,
     shade: ShadeParams,
     /// The DEM's posts in the grid, inclusive `[x0, y0, x1, y1]`.
     valid_window: [u32; 4],
@@ -115,6 +140,7 @@ pub struct TerrainRenderer {
     overlay: VertexBuffer,
     overlay_vertices: u32,
     probe_pipeline: wgpu::RenderPipeline,
+    probe_morph_pipeline: wgpu::RenderPipeline,
     vertices: VertexBuffer,
     morph: VertexBuffer,
     strip_len: u32,
@@ -141,7 +167,7 @@ impl TerrainRenderer {
     /// (too little memory, limits) come back as [`crate::Error::Gpu`].
     pub fn new(
         gpu: &Gpu,
-        terrain: &TerrainFile,
+        terrain: &Arc<TerrainFile>,
         colour_format: wgpu::TextureFormat,
         options: RendererOptions,
         progress: Progress,
@@ -151,7 +177,7 @@ impl TerrainRenderer {
 
     fn build(
         gpu: &Gpu,
-        terrain: &TerrainFile,
+        terrain: &Arc<TerrainFile>,
         colour_format: wgpu::TextureFormat,
         options: RendererOptions,
         progress: Progress,
@@ -171,9 +197,25 @@ impl TerrainRenderer {
                 }
                 t
             }
-            None => HeightTiling::plan(posts, limits.max_texture_dimension_2d, limits.max_texture_array_layers)?,
+            None => HeightTiling::plan(posts, limits.max_texture_dimension_2d, limits.max_texture_array_layers)
+                .unwrap_or(HeightTiling::with_tile(posts, limits.max_texture_dimension_2d)),
         };
-        let heights = GpuHeights::upload(device, &gpu.queue, terrain, tiling, progress)?;
+        let budget = options.gpu_memory.unwrap_or(DEFAULT_GPU_MEMORY);
+        let fits = tiling.tile_posts <= limits.max_texture_dimension_2d
+            && tiling.layers() <= limits.max_texture_array_layers
+            && tiling.bytes() <= budget;
+        let heights = if fits {
+            Heights::Resident(GpuHeights::upload(device, &gpu.queue, terrain, tiling, progress)?)
+        } else {
+            let budget = CacheBudget {
+                gpu_bytes: budget,
+                upload_bytes_per_frame: options.upload_per_frame.unwrap_or(DEFAULT_UPLOAD_PER_FRAME),
+                max_slots: limits.max_texture_array_layers,
+            };
+            let tile = options.cache_tile_cells.unwrap_or(DEFAULT_TILE_CELLS);
+            let pool = GpuHeightCache::new(device, terrain.clone(), tile, budget)?;
+            Heights::Cached { pool: Box::new(pool), terrain: terrain.clone(), tiling }
+        };
         let h = terrain.header();
         let shade = ShadeParams::for_terrain(h.spacing_m, posts, h.z_min, h.z_max);
 
@@ -201,14 +243,36 @@ impl TerrainRenderer {
                     },
                     count: None,
                 },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
             ],
         });
+        // Without the cache the table is never read; a small buffer fills the binding.
+        let no_table = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("relief height table (unused)"),
+            size: 4 * crate::heightcache::TABLE_HEADER as u64,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let (heights_view, table) = match &heights {
+            Heights::Resident(h) => (&h.view, &no_table),
+            Heights::Cached { pool, .. } => (&pool.view, &pool.table),
+        };
         let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("relief frame"),
             layout: &bind_layout,
             entries: &[
                 wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&heights.view) },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(heights_view) },
+                wgpu::BindGroupEntry { binding: 2, resource: table.as_entire_binding() },
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -315,11 +379,22 @@ impl TerrainRenderer {
             "fs_probe",
             &probe_targets,
         );
+        let probe_morph_pipeline = pipeline(
+            "probe morph",
+            "vs_terrain_morph",
+            &[Some(grid_layout(v1)), Some(morph_layout(m1))],
+            TriangleStrip,
+            depth(true, Greater),
+            "fs_probe",
+            &probe_targets,
+        );
 
         let vertices = VertexBuffer::new(device, "relief strip", 1 << 20);
         let morph = VertexBuffer::new(device, "relief strip morph", 1 << 20);
         Ok(TerrainRenderer {
             heights,
+            own_morph: Vec::new(),
+            last_heights_upload: 0,
             shade,
             valid_window: {
                 let [x0, y0, x1, y1] = h.valid_window;
@@ -336,6 +411,7 @@ impl TerrainRenderer {
             overlay: VertexBuffer::new(device, "relief overlay", 256),
             overlay_vertices: 0,
             probe_pipeline,
+            probe_morph_pipeline,
             vertices,
             morph,
             strip_len: 0,
@@ -345,31 +421,93 @@ impl TerrainRenderer {
         })
     }
 
+    /// The whole grid's tiling (what is resident without the cache).
     pub fn tiling(&self) -> HeightTiling {
-        self.heights.tiling
+        match &self.heights {
+            Heights::Resident(h) => h.tiling,
+            Heights::Cached { tiling, .. } => *tiling,
+        }
     }
 
-    /// GPU memory taken by the heights, bytes.
+    /// GPU memory taken by the heights, bytes: the whole grid, or the cache's pool and table.
     pub fn heights_bytes(&self) -> u64 {
-        self.heights.tiling.bytes()
+        match &self.heights {
+            Heights::Resident(h) => h.tiling.bytes(),
+            Heights::Cached { pool, .. } => pool.cache.pool_bytes(),
+        }
+    }
+
+    /// Whether heights come from the cache (the grid does not fit the GPU memory budget).
+    pub fn cached(&self) -> bool {
+        matches!(self.heights, Heights::Cached { .. })
+    }
+
+    /// The height cache's figures of the last frame (the whole grid when resident).
+    pub fn height_stats(&self) -> HeightCacheStats {
+        match &self.heights {
+            Heights::Resident(h) => HeightCacheStats {
+                cached: false,
+                budget_bytes: h.tiling.bytes(),
+                in_use_bytes: h.tiling.bytes(),
+                tiles_resident: h.tiling.layers() as u64,
+                ..Default::default()
+            },
+            Heights::Cached { pool, .. } => {
+                let mut s = pool.stats();
+                s.upload_bytes = self.last_heights_upload;
+                s
+            }
+        }
+    }
+
+    /// The height cache, if heights come from one (tests and the panel).
+    pub fn height_cache(&self) -> Option<&crate::heightcache::HeightCache> {
+        match &self.heights {
+            Heights::Cached { pool, .. } => Some(&pool.cache),
+            Heights::Resident(_) => None,
+        }
+    }
+
+    /// The height cache's step for a frame seen by `camera`: tells the loader about `new_strip`
+    /// (the strip just uploaded, if it changed), then writes the finished tiles that fit the
+    /// upload budget, never waiting for the loader. Returns the bytes sent (0 without the cache).
+    pub fn sync_heights(&mut self, gpu: &Gpu, camera: &Camera, new_strip: Option<&Strip>) -> Result<u64> {
+        let Heights::Cached { pool, terrain, .. } = &mut self.heights else { return Ok(0) };
+        if let Some(strip) = new_strip {
+            let heights = if strip.morph.len() == strip.vertices.len() { &strip.morph } else { &self.own_morph };
+            pool.want(&strip.vertices, heights, WantView::new(camera, terrain.header().spacing_m));
+        }
+        self.last_heights_upload = pool.sync(&gpu.queue)?;
+        Ok(self.last_heights_upload)
     }
 
     pub fn shade_params(&self) -> &ShadeParams {
         &self.shade
     }
 
-    /// Uploads a new strip (and its geomorph values, if any); returns the bytes sent.
-    pub fn upload_strip(&mut self, gpu: &Gpu, strip: &Strip) -> u64 {
+    /// Uploads a new strip (and its geomorph values, if any); returns the bytes sent. With the
+    /// height cache every vertex needs its height: a strip without them (refined without
+    /// [`crate::refine::RefineOptions::heights`]) has them read from the file here.
+    pub fn upload_strip(&mut self, gpu: &Gpu, strip: &Strip) -> Result<u64> {
         let vbytes: &[u8] = bytemuck::cast_slice(&strip.vertices);
         self.vertices.write(&gpu.device, &gpu.queue, vbytes);
-        let morph = !strip.morph.is_empty() && strip.morph.len() == strip.vertices.len();
-        let mbytes: &[u8] = if morph { bytemuck::cast_slice(&strip.morph) } else { &[] };
+        let mut morph = !strip.morph.is_empty() && strip.morph.len() == strip.vertices.len();
+        let mut own = false;
+        if let (false, Heights::Cached { terrain, .. }) = (morph, &self.heights) {
+            crate::heightcache::exact_heights(terrain, &strip.vertices, &mut self.own_morph)?;
+            (morph, own) = (true, true);
+        }
+        let mbytes: &[u8] = match (morph, own) {
+            (true, false) => bytemuck::cast_slice(&strip.morph),
+            (true, true) => bytemuck::cast_slice(&self.own_morph),
+            _ => &[],
+        };
         self.morph.write(&gpu.device, &gpu.queue, mbytes);
         self.strip_len = u32::try_from(strip.vertices.len()).unwrap_or(u32::MAX);
         self.strip_morph = morph;
         self.triangles = strip.triangle_counts().0;
         self.last_upload_bytes = (vbytes.len() + mbytes.len()) as u64;
-        self.last_upload_bytes
+        Ok(self.last_upload_bytes)
     }
 
     /// Line segments (world metres) to draw over the next frames; empty to clear. Positions are
@@ -398,7 +536,11 @@ impl TerrainRenderer {
     fn frame_uniform(&self, camera: &Camera, near_m: f64, flags: u32) -> FrameUniform {
         let clip_from_rel = camera.clip_from_rel(near_m);
         let s = &self.shade;
-        let t = self.heights.tiling;
+        let t = self.tiling();
+        let cache = match &self.heights {
+            Heights::Resident(_) => [0; 4],
+            Heights::Cached { pool, .. } => [1, pool.cache.grid().tile_cells(), pool.cache.grid().levels(), 0],
+        };
         let e = camera.eye_in_world.as_vec3();
         FrameUniform {
             clip_from_rel: clip_from_rel.to_cols_array_2d(),
@@ -416,6 +558,7 @@ impl TerrainRenderer {
             flags,
             wire_colour: [0.02, 0.02, 0.03, 1.0],
             valid_window: self.valid_window.map(|v| v as f32),
+            cache,
         }
     }
 
@@ -512,8 +655,14 @@ impl TerrainRenderer {
         });
         if self.strip_len >= 3 {
             pass.set_bind_group(0, &self.bind_group, &[]);
-            pass.set_pipeline(&self.probe_pipeline);
-            pass.set_vertex_buffer(0, self.vertices.buffer.slice(..self.strip_len as u64 * VERTEX_BYTES));
+            let n = self.strip_len as u64;
+            if self.strip_morph {
+                pass.set_pipeline(&self.probe_morph_pipeline);
+                pass.set_vertex_buffer(1, self.morph.buffer.slice(..n * MORPH_BYTES));
+            } else {
+                pass.set_pipeline(&self.probe_pipeline);
+            }
+            pass.set_vertex_buffer(0, self.vertices.buffer.slice(..n * VERTEX_BYTES));
             pass.draw(0..self.strip_len, 0..1);
         }
     }

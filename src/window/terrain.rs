@@ -30,6 +30,8 @@ pub struct WindowOptions {
     pub threads: usize,
     /// Refine on the render thread before each frame instead of on the refinement thread.
     pub sync: bool,
+    /// GPU memory for heights and the height cache's upload budget.
+    pub renderer: RendererOptions,
     pub progress: Progress,
 }
 
@@ -107,8 +109,10 @@ impl Scene for TerrainScene {
 
     fn start(&mut self, gpu: &Gpu, format: wgpu::TextureFormat, start: Option<(DVec3, DVec3)>) -> Result<FlyCamera> {
         let o = &self.options;
-        let renderer = TerrainRenderer::new(gpu, &self.terrain, format, RendererOptions::default(), o.progress)?;
-        let source = TerrainSource::new(self.terrain.clone(), o.refine, o.threads, !o.sync)?;
+        let renderer = TerrainRenderer::new(gpu, &self.terrain, format, o.renderer, o.progress)?;
+        let refine = RefineOptions { heights: renderer.cached(), ..o.refine };
+        let source = TerrainSource::new(self.terrain.clone(), refine, o.threads, !o.sync)?;
+        self.options.refine = refine;
         self.drawn = Some(Drawn { renderer, source });
         Ok(start_camera(&self.terrain, start))
     }
@@ -135,7 +139,9 @@ impl Scene for TerrainScene {
         if !self.frozen {
             d.source.set_options(RefineOptions { cull: self.cull, ..self.options.refine });
             let u = d.source.update(cam, self.tolerance_px)?;
-            let upload_bytes = if u.changed { d.renderer.upload_strip(gpu, d.source.strip()) } else { 0 };
+            let strip_bytes = if u.changed { d.renderer.upload_strip(gpu, d.source.strip())? } else { 0 };
+            let height_bytes = d.renderer.sync_heights(gpu, cam, u.changed.then(|| d.source.strip()))?;
+            let upload_bytes = strip_bytes + height_bytes;
             self.stats.upload_bytes = upload_bytes + FRAME_UNIFORM_BYTES;
             self.stats.lag = u.lag_frames;
             if u.changed {
@@ -174,7 +180,29 @@ impl Scene for TerrainScene {
             ("strip length", format!("{}", r.strip_len())),
             ("upload", format!("{} B this frame", st.upload_bytes)),
             ("strip upload", format!("{:.1} KiB (last)", st.strip_upload_bytes as f64 / 1024.0)),
-            ("GPU heights", format!("{:.1} MiB", r.heights_bytes() as f64 / 1048576.0)),
+            ("GPU heights", {
+                let h = r.height_stats();
+                if h.cached {
+                    format!(
+                        "cache {:.1} of {:.1} MiB",
+                        h.in_use_bytes as f64 / 1048576.0,
+                        h.budget_bytes as f64 / 1048576.0
+                    )
+                } else {
+                    format!("{:.1} MiB (whole grid)", r.heights_bytes() as f64 / 1048576.0)
+                }
+            }),
+            ("height tiles", {
+                let h = r.height_stats();
+                format!(
+                    "{} resident, {} wanted, {} coarser, +{} ({:.1} MiB) this frame",
+                    h.tiles_resident,
+                    h.wanted,
+                    h.fallbacks,
+                    h.tiles_uploaded,
+                    h.upload_bytes as f64 / 1048576.0
+                )
+            }),
             ("resident", format!("{:.1} MiB", mem::rss_bytes().unwrap_or(0) as f64 / 1048576.0)),
             ("page faults", format!("{:.0}/s ({:.0} major/s)", st.faults_per_s, st.major_faults_per_s)),
             ("strip lag", format!("{} frames", st.lag)),

@@ -72,6 +72,7 @@ fn end_to_end(dir: &Path, name: &str, input: &Path, min_mean_triangles: u64, loo
         &camera,
         &options,
         DrawStyle::default(),
+        Default::default(),
         1,
         Progress::hidden(),
     )

@@ -16,6 +16,7 @@ mod edge_cases;
 mod flight;
 mod fly;
 mod fuzz_regressions;
+mod height_cache;
 mod layouts;
 mod mesh_io;
 mod mesh_render;

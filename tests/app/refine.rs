@@ -64,7 +64,7 @@ fn triangle_count_never_grows_with_tolerance_and_culling_only_removes() {
         let metric = if k % 2 == 0 { MetricKind::Isotropic } else { MetricKind::Projected };
         let mut previous: Option<(u64, Vec<(u32, u32)>)> = None;
         for tolerance_px in [0.25, 0.5, 1.0, 1.5, 2.0, 4.0, 8.0, 32.0] {
-            let mut o = RefineOptions { tolerance_px, metric, cull: true, morph_ratio: None };
+            let mut o = RefineOptions { tolerance_px, metric, cull: true, morph_ratio: None, heights: false };
             refiner.refine_file(file, &camera, &o, &mut culled).unwrap();
             o.cull = false;
             refiner.refine_file(file, &camera, &o, &mut full).unwrap();
@@ -161,8 +161,13 @@ fn geomorphing_blends_new_vertices_in_from_their_edge_midpoints() {
     let mut appeared = 0;
     for k in 0..100 {
         let camera = random_camera(&mut rng, file);
-        let options =
-            RefineOptions { tolerance_px: 1.0, metric: MetricKind::Isotropic, cull: false, morph_ratio: Some(3.0) };
+        let options = RefineOptions {
+            tolerance_px: 1.0,
+            metric: MetricKind::Isotropic,
+            cull: false,
+            morph_ratio: Some(3.0),
+            heights: false,
+        };
         refiner.refine_file(file, &camera, &options, &mut before).unwrap();
         refiner.refine_file(file, &camera, &RefineOptions { morph_ratio: None, ..options }, &mut plain).unwrap();
         assert_eq!(before.vertices, plain.vertices, "geomorphing does not change the mesh");
@@ -220,8 +225,13 @@ fn nested_mesh_is_close_to_and_contains_the_minimal_mesh() {
     let mut ratios = Vec::new();
     for _ in 0..100 {
         let camera = random_camera(&mut rng, file);
-        let options =
-            RefineOptions { tolerance_px: 1.0, metric: MetricKind::Isotropic, cull: false, morph_ratio: None };
+        let options = RefineOptions {
+            tolerance_px: 1.0,
+            metric: MetricKind::Isotropic,
+            cull: false,
+            morph_ratio: None,
+            heights: false,
+        };
         let (r, _) = refine_report(file, &camera, &options, &report).unwrap();
         let ratio = r.ratio_to_minimal.unwrap();
         assert!(ratio >= 1.0, "the minimal mesh is never larger: {ratio}");

@@ -99,11 +99,11 @@ fn gpu_shading_matches_the_cpu_reference_across_tiles() {
             &gpu,
             &t,
             relief::render::offscreen::OFFSCREEN_FORMAT,
-            RendererOptions { tile_posts },
+            RendererOptions { tile_posts, ..Default::default() },
             Progress::hidden(),
         )
         .unwrap();
-        r.upload_strip(&gpu, &strip);
+        r.upload_strip(&gpu, &strip).unwrap();
         let targets = ProbeTargets::new(&gpu, cam.width_px, cam.height_px);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         r.encode_probe(
@@ -217,7 +217,17 @@ fn render_golden(g: &Golden, gpu: &Gpu) -> (image::RgbaImage, StillReport) {
     let t = terrain(g.dem);
     let cam = camera(g.eye, g.look, 320, 200);
     let options = RefineOptions { tolerance_px: g.tolerance_px, morph_ratio: g.geomorph, ..Default::default() };
-    render_still(gpu, t, &cam, &options, DrawStyle { wireframe: g.wireframe }, 1, Progress::hidden()).unwrap()
+    render_still(
+        gpu,
+        t,
+        &cam,
+        &options,
+        DrawStyle { wireframe: g.wireframe },
+        Default::default(),
+        1,
+        Progress::hidden(),
+    )
+    .unwrap()
 }
 
 #[test]

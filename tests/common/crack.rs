@@ -68,6 +68,7 @@ pub fn random_options(rng: &mut Rng) -> RefineOptions {
         metric: if rng.next().is_multiple_of(2) { MetricKind::Isotropic } else { MetricKind::Projected },
         cull: !rng.next().is_multiple_of(4),
         morph_ratio: None,
+        heights: false,
     }
 }
 

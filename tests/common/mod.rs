@@ -64,6 +64,7 @@ pub fn fly_terrain(
         w,
         h,
         DrawStyle::default(),
+        Default::default(),
         relief::sys::progress::Progress::hidden(),
     )
     .unwrap();

@@ -16,6 +16,7 @@ use serde::Serialize;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::heightcache::HeightCacheStats;
 use crate::mesh::{Bounds, Mesh};
 use crate::refine::Strip;
 use crate::sys::progress::Progress;
@@ -107,6 +108,10 @@ pub trait Presenter {
     fn resident_bytes(&self) -> u64 {
         0
     }
+    /// The GPU height cache's figures of the last frame (zero where there are no heights).
+    fn heights(&self) -> HeightCacheStats {
+        HeightCacheStats::default()
+    }
 }
 
 /// Settings of a headless flight.
@@ -159,6 +164,9 @@ pub struct FrameRecord {
     /// minor (mapped from memory, readahead included).
     pub major_faults: u64,
     pub minor_faults: u64,
+    /// GPU heights: the whole grid resident, or the height cache's frame (bytes in use within
+    /// the budget, tiles resident and uploaded, fallbacks to coarser tiles).
+    pub gpu_heights: HeightCacheStats,
 }
 
 /// Mean, median, maximum and total of one figure over a flight's frames.
@@ -222,6 +230,12 @@ pub struct FlightSummary {
     pub lag_frames: Summary,
     pub major_faults: Summary,
     pub minor_faults: Summary,
+    /// GPU height memory in use, height-tile upload bytes, tiles resident and wanted tiles that
+    /// fell back to a coarser level, per frame.
+    pub gpu_height_bytes: Summary,
+    pub height_upload_bytes: Summary,
+    pub tiles_resident: Summary,
+    pub height_fallbacks: Summary,
 }
 
 /// A flight: `{"frames": […], "summary": {…}}`.
@@ -265,6 +279,10 @@ impl FlightSummary {
             lag_frames: s(|f| f.stats.lag_frames as f64),
             major_faults: s(|f| f.major_faults as f64),
             minor_faults: s(|f| f.minor_faults as f64),
+            gpu_height_bytes: s(|f| f.gpu_heights.in_use_bytes as f64),
+            height_upload_bytes: s(|f| f.gpu_heights.upload_bytes as f64),
+            tiles_resident: s(|f| f.gpu_heights.tiles_resident as f64),
+            height_fallbacks: s(|f| f.gpu_heights.fallbacks as f64),
         }
     }
 }
@@ -306,9 +324,10 @@ pub fn fly<'p>(
         let stats = source.update(camera, options.tolerance_px)?;
         let faults1 = crate::sys::mem::page_faults();
         let t_render = Instant::now();
-        let mut upload_bytes = 0;
+        let (mut upload_bytes, mut gpu_heights) = (0, HeightCacheStats::default());
         if let Some(p) = presenter.as_deref_mut() {
             upload_bytes = p.present(source.frame(), stats.changed || k == 0, camera)?;
+            gpu_heights = p.heights();
         }
         let render_ms = if presenter.is_some() { t_render.elapsed().as_secs_f64() * 1e3 } else { 0.0 };
         if let (Some(p), Some(dir)) = (presenter.as_deref_mut(), &options.frames_out) {
@@ -323,6 +342,7 @@ pub fn fly<'p>(
             upload_bytes,
             major_faults: faults1.0 - faults0.0,
             minor_faults: faults1.1 - faults0.1,
+            gpu_heights,
         });
         bar.inc(1);
     }

@@ -100,7 +100,14 @@ pub struct Refined {
 pub fn refine_once(refiner: &mut Refiner, terrain: &TerrainFile, job: RefineJob, mut strip: Strip) -> Refined {
     let faults0 = mem::page_faults();
     let t0 = Instant::now();
-    let (counters, error) = match refiner.refine_file(terrain, &job.camera, &job.options, &mut strip) {
+    let mut result = refiner.refine_file(terrain, &job.camera, &job.options, &mut strip);
+    if job.options.heights && job.options.morph_ratio.is_none() {
+        result = result.and_then(|c| {
+            crate::heightcache::exact_heights(terrain, &strip.vertices, &mut strip.morph)?;
+            Ok(c)
+        });
+    }
+    let (counters, error) = match result {
         Ok(c) => (c, None),
         Err(e) => (RefineCounters::default(), Some(e)),
     };

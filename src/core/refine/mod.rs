@@ -164,11 +164,20 @@ pub struct RefineOptions {
     /// Geomorphing: vertices blend in between the distances that project their error to τ and to
     /// `morph_ratio · τ` (> 1). `None`: off (no morph data is produced).
     pub morph_ratio: Option<f64>,
+    /// Without geomorphing, still give every strip vertex its exact height (morph data with blend
+    /// 1), for a renderer that does not hold every height (the GPU height cache).
+    pub heights: bool,
 }
 
 impl Default for RefineOptions {
     fn default() -> Self {
-        RefineOptions { tolerance_px: 1.0, metric: MetricKind::Isotropic, cull: true, morph_ratio: None }
+        RefineOptions {
+            tolerance_px: 1.0,
+            metric: MetricKind::Isotropic,
+            cull: true,
+            morph_ratio: None,
+            heights: false,
+        }
     }
 }
 

@@ -1,0 +1,99 @@
+//! The GPU side of the height cache (`relief_core::heightcache`): the pool of tile slots (an
+//! `R32Float` texture array, one slot per layer) and the table buffer `shaders/terrain.wgsl` reads,
+//! written from what [`HeightCache::frame`] hands over within the per-frame upload budget.
+
+use std::sync::Arc;
+
+use crate::error::Result;
+use crate::format::terrain::TerrainFile;
+use crate::heightcache::{CacheBudget, HeightCache, HeightCacheStats, WantView};
+use crate::refine::{Morph, StripVertex};
+
+/// GPU memory for heights when none is given: the whole grid stays resident up to this, else the
+/// cache takes this much (bounded by the adapter's texture limits).
+pub const DEFAULT_GPU_MEMORY: u64 = 2 << 30;
+/// CPU → GPU bytes per frame for height tiles when none is given.
+pub const DEFAULT_UPLOAD_PER_FRAME: u64 = 16 << 20;
+
+/// The pool, the table and the CPU side that fills them.
+pub struct GpuHeightCache {
+    pub cache: HeightCache,
+    pub texture: wgpu::Texture,
+    pub view: wgpu::TextureView,
+    pub table: wgpu::Buffer,
+}
+
+impl GpuHeightCache {
+    /// A pool for `terrain` in tiles of `tile_cells` cells within `budget` (its layer count capped
+    /// by the adapter's).
+    pub fn new(
+        device: &wgpu::Device,
+        terrain: Arc<TerrainFile>,
+        tile_cells: u32,
+        budget: CacheBudget,
+    ) -> Result<GpuHeightCache> {
+        let cache = HeightCache::new(terrain, tile_cells, budget)?;
+        let side = cache.grid().slot_posts();
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("relief height cache"),
+            size: wgpu::Extent3d { width: side, height: side, depth_or_array_layers: cache.slots() },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::R32Float,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            label: Some("relief height cache"),
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let table = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("relief height table"),
+            size: cache.grid().table_bytes(),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Ok(GpuHeightCache { cache, texture, view, table })
+    }
+
+    /// Tells the loader about a new strip seen from `view`.
+    pub fn want(&mut self, vertices: &[StripVertex], heights: &[Morph], view: WantView) {
+        self.cache.want(vertices, heights, view);
+    }
+
+    /// This frame's uploads: the finished tiles within the budget and the table when it changed.
+    /// Never waits for the loader. Returns the bytes written.
+    pub fn sync(&mut self, queue: &wgpu::Queue) -> Result<u64> {
+        let side = self.cache.grid().slot_posts();
+        let mut bytes = 0u64;
+        let (tiles, table) = self.cache.frame()?;
+        for t in &tiles {
+            let data: &[u8] = bytemuck::cast_slice(t.heights);
+            queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &self.texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d { x: 0, y: 0, z: t.slot },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                data,
+                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * side), rows_per_image: Some(side) },
+                wgpu::Extent3d { width: side, height: side, depth_or_array_layers: 1 },
+            );
+            bytes += data.len() as u64;
+        }
+        if let Some(table) = table {
+            let data: &[u8] = bytemuck::cast_slice(table);
+            queue.write_buffer(&self.table, 0, data);
+            bytes += data.len() as u64;
+        }
+        self.cache.uploaded();
+        Ok(bytes)
+    }
+
+    pub fn stats(&self) -> HeightCacheStats {
+        self.cache.stats()
+    }
+}
