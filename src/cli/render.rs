@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 use relief::format::terrain::TerrainFile;
-use relief::render::{render_still, save_png, DrawStyle, Gpu};
+use relief::render::{render_still, save_png, DrawStyle, Gpu, StillOptions};
 
 use super::{check_output_file, fmt_bytes, print_json, progress, GpuArgs, ViewArgs};
 
@@ -37,8 +37,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let f = Arc::new(TerrainFile::open(&a.file)?);
     let gpu = Gpu::headless()?;
     let style = DrawStyle { wireframe: a.wireframe };
-    let (image, r) =
-        render_still(&gpu, f, &camera, &options, style, renderer, a.view.refine.threads, progress(a.quiet))?;
+    let (image, r) = render_still(
+        &gpu,
+        f,
+        &camera,
+        &options,
+        StillOptions { style, renderer, threads: a.view.refine.threads },
+        progress(a.quiet),
+    )?;
     save_png(&image, &a.out)?;
     if a.json {
         print_json(&r)?;

@@ -421,6 +421,8 @@ struct Shared {
     /// The newest plan's needed tiles (for counting fallbacks).
     needed: Vec<u32>,
     error: Option<Error>,
+    /// The loader has a strip to plan or wanted tiles left to fill.
+    busy: bool,
     closed: bool,
 }
 
@@ -493,6 +495,7 @@ impl HeightCache {
                 spare: Vec::new(),
                 needed: Vec::new(),
                 error: None,
+                busy: false,
                 closed: false,
             }),
             wake: Condvar::new(),
@@ -508,7 +511,8 @@ impl HeightCache {
         let mut table = vec![0u32; (TABLE_HEADER + grid.tiles()) as usize];
         table[..TABLE_HEADER as usize].copy_from_slice(&grid.header());
         let (g, l) = (grid.clone(), link.clone());
-        let capacity = slots as usize - 1;
+        // The plan names the coarsest tile too (every tile's last ancestor): the pool holds it all.
+        let capacity = slots as usize;
         let loader = std::thread::Builder::new()
             .name("relief-heights".into())
             .spawn(move || load(&terrain, &g, &l, capacity))
@@ -563,6 +567,7 @@ impl HeightCache {
         h.clear();
         h.extend_from_slice(heights);
         s.job = Some(WantJob { vertices: v, heights: h, view, seq: self.seq });
+        s.busy = true;
         drop(s);
         self.link.wake.notify_all();
     }
@@ -576,15 +581,17 @@ impl HeightCache {
         let mut stats = HeightCacheStats { cached: true, budget_bytes: self.budget.gpu_bytes, ..Default::default() };
         // Blends advance first, so a tile placed now shows from 0.
         let step = 255u32.div_ceil(FADE_FRAMES);
-        let table = &mut self.table;
+        let (table, mut blended) = (&mut self.table, false);
         self.fading.retain(|&slot| {
             let Some(key) = self.slot_key[slot as usize] else { return false };
             let e = &mut table[(TABLE_HEADER + key) as usize];
             let fade = ((*e >> 24) + step).min(255);
             *e = (*e & 0x00ff_ffff) | fade << 24;
+            blended = true;
             fade < 255
         });
-        self.table_dirty |= !self.fading.is_empty();
+        // Every step goes to the GPU, the last one (to 255) included.
+        self.table_dirty |= blended;
         let (slot_bytes, table_bytes) = (self.grid.slot_bytes(), self.grid.table_bytes());
         let mut room = self.budget.upload_bytes_per_frame.saturating_sub(table_bytes);
         {
@@ -656,6 +663,8 @@ impl HeightCache {
             }
         };
         self.slot_key[slot as usize] = Some(key);
+        // A reused slot may still be fading in for its old tile.
+        self.fading.retain(|&s| s != slot);
         // The coarsest tile has nothing to blend from: it shows at once.
         let fade = if key == top { 255 } else { 0 };
         self.table[(TABLE_HEADER + key) as usize] = (slot + 1) | fade << 24;
@@ -692,10 +701,7 @@ impl HeightCache {
     /// is resident or was dropped, and nothing waits for upload.
     pub fn settled(&self) -> bool {
         let s = self.link.lock();
-        s.job.is_none()
-            && s.ready.is_empty()
-            && self.taken.is_empty()
-            && self.link.state.iter().all(|st| st.load(Ordering::Relaxed) != LOADING)
+        !s.busy && s.job.is_none() && s.ready.is_empty() && self.taken.is_empty()
     }
 
     /// [`Self::settled`], and every placed tile has finished blending in.
@@ -742,6 +748,7 @@ fn load(terrain: &TerrainFile, grid: &TileGrid, link: &Link, capacity: usize) {
                 if next < plan.len() && s.ready.len() < READY_MAX {
                     break None;
                 }
+                s.busy = next < plan.len();
                 s = link.wake.wait(s).unwrap_or_else(|p| p.into_inner());
             }
         };

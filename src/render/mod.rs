@@ -17,5 +17,5 @@ mod vertex_buffer;
 pub use gpu::Gpu;
 pub use mesh::{MeshRenderer, MeshStyle, MeshView};
 pub use offscreen::Offscreen;
-pub use present::{render_still, save_png, MeshPresenter, MeshStage, StillReport, TerrainPresenter};
+pub use present::{render_still, save_png, MeshPresenter, MeshStage, StillOptions, StillReport, TerrainPresenter};
 pub use terrain::{DrawStyle, FrameView, RendererOptions, TerrainRenderer};

@@ -246,17 +246,31 @@ pub struct StillReport {
     pub adapter: String,
 }
 
-/// Refines and renders one view of `terrain` offscreen.
+/// How to draw a still: the style, the renderer's options (GPU height memory), refinement threads.
+#[derive(Clone, Copy, Debug)]
+pub struct StillOptions {
+    pub style: DrawStyle,
+    pub renderer: RendererOptions,
+    pub threads: usize,
+}
+
+impl Default for StillOptions {
+    fn default() -> Self {
+        StillOptions { style: DrawStyle::default(), renderer: RendererOptions::default(), threads: 1 }
+    }
+}
+
+/// Refines and renders one view of `terrain` offscreen; with the height cache, once the cache
+/// holds what the view wants.
 pub fn render_still(
     gpu: &Gpu,
     terrain: Arc<TerrainFile>,
     camera: &Camera,
     refine: &RefineOptions,
-    style: DrawStyle,
-    renderer: RendererOptions,
-    threads: usize,
+    still: StillOptions,
     progress: Progress,
 ) -> Result<(image::RgbaImage, StillReport)> {
+    let StillOptions { style, renderer, threads } = still;
     let mut presenter =
         TerrainPresenter::new(gpu, terrain.clone(), camera.width_px, camera.height_px, style, renderer, progress)?;
     let refine = RefineOptions { heights: presenter.renderer.cached(), ..*refine };

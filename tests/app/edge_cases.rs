@@ -21,7 +21,6 @@ use relief::refine::check::{check_strip, MeshCheck};
 use relief::refine::metric::Isotropic;
 use relief::refine::{RecordSource, RefineOptions, Refiner, Strip, View};
 use relief::render::render_still;
-use relief::render::DrawStyle;
 use relief::sys::progress::Progress;
 
 /// Writes an ASCII grid of `rows` (north first); `None` is the nodata value −9999.
@@ -71,9 +70,7 @@ fn end_to_end(dir: &Path, name: &str, input: &Path, min_mean_triangles: u64, loo
         std::sync::Arc::new(relief::format::terrain::TerrainFile::open(files[0].path()).unwrap()),
         &camera,
         &options,
-        DrawStyle::default(),
-        Default::default(),
-        1,
+        relief::render::StillOptions::default(),
         Progress::hidden(),
     )
     .unwrap_or_else(|e| panic!("{name}: {e}"));

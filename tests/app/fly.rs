@@ -187,3 +187,12 @@ fn fly_window_runs_under_xvfb_and_keys_record_and_screenshot() {
     let file = zurich(dir.path());
     window_session(&["fly".as_ref(), file.as_os_str()]);
 }
+
+/// The same session with heights paged through a height cache of two 256-cell tiles (the grid
+/// needs 1 MiB resident): the window's frames, panel and keys work the same.
+#[test]
+fn fly_window_runs_with_the_height_cache() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = zurich(dir.path());
+    window_session(&["fly".as_ref(), file.as_os_str(), "--gpu-memory".as_ref(), "600K".as_ref()]);
+}

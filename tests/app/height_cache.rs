@@ -87,16 +87,18 @@ fn paged_heights_render_as_the_resident_grid_along_a_flight() {
     }
     assert_eq!(checked, 4);
 
-    // Before the cache has settled, only the coarsest tile is there: the image is visibly
+    // Before the cache has settled, only the coarsest tiles are there: the image is visibly
     // coarser (about 1 level on average, inside the golden tolerance), so the strict bound above
-    // compares something.
+    // compares something. One tile a frame (4,900 bytes and the 1,492-byte table): after one
+    // frame at most one tile below the coarsest.
     let cam = path.camera(15, 60.0, w, h).unwrap();
+    let one_a_frame = RendererOptions { upload_per_frame: Some(4_900 + 1_492), ..PAGED };
     let mut cold =
-        TerrainPresenter::new(&gpu, t.clone(), w, h, DrawStyle::default(), PAGED, Progress::hidden()).unwrap();
+        TerrainPresenter::new(&gpu, t.clone(), w, h, DrawStyle::default(), one_a_frame, Progress::hidden()).unwrap();
     source.update(&cam, 1.0).unwrap();
     cold.present(source.frame(), true, &cam).unwrap();
     resident.present(source.frame(), true, &cam).unwrap();
-    assert_eq!(cold.heights().tiles_resident, 1);
+    assert!(cold.heights().tiles_resident <= 2, "{:?}", cold.heights());
     let (c, r) = (cold.image().unwrap(), resident.image().unwrap());
     paged.settle(source.strip(), &cam).unwrap();
     let (cold_mean, settled_mean) = (mean_diff(&c, &r).0, mean_diff(&paged.image().unwrap(), &r).0);

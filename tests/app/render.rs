@@ -222,9 +222,7 @@ fn render_golden(g: &Golden, gpu: &Gpu) -> (image::RgbaImage, StillReport) {
         t,
         &cam,
         &options,
-        DrawStyle { wireframe: g.wireframe },
-        Default::default(),
-        1,
+        relief::render::StillOptions { style: DrawStyle { wireframe: g.wireframe }, ..Default::default() },
         Progress::hidden(),
     )
     .unwrap()

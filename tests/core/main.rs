@@ -36,3 +36,4 @@ mod common {
 mod backends;
 mod dem_readers;
 mod formats;
+mod height_cache;
