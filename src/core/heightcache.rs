@@ -176,49 +176,56 @@ impl TileGrid {
         let (k, tx, ty) = self.decode(key);
         let last = self.last_post(k) as i64;
         let at = move |t: u32, d: u32| ((((t as i64) << self.t_log2) - 1 + d as i64).clamp(0, last) as u32) << k;
-        read_heights(terrain, (0..s).flat_map(|j| (0..s).map(move |i| (at(tx, i), at(ty, j)))), out)
+        let mut texels = out.iter_mut();
+        read_heights(terrain, (0..s).flat_map(|j| (0..s).map(move |i| (at(tx, i), at(ty, j)))), |z| {
+            if let Some(h) = texels.next() {
+                *h = z;
+            }
+        })
     }
 }
 
-/// The heights of `posts` into `out` (one each), read from `terrain`'s records: in place when the
-/// file is mapped, else through its pager; a read error is returned.
-pub fn read_heights(terrain: &TerrainFile, posts: impl Iterator<Item = (u32, u32)>, out: &mut [f32]) -> Result<()> {
-    struct Read<'a, I> {
+/// The height of each of `posts`, handed to `put` in order, read from `terrain`'s records: in
+/// place when the file is mapped, else through its pager; a read error is returned.
+pub fn read_heights(
+    terrain: &TerrainFile,
+    posts: impl Iterator<Item = (u32, u32)>,
+    put: impl FnMut(f32),
+) -> Result<()> {
+    struct Read<'a, I, P> {
         terrain: &'a TerrainFile,
         posts: I,
-        out: &'a mut [f32],
+        put: P,
     }
-    impl<I: Iterator<Item = (u32, u32)>> LayoutVisitor for Read<'_, I> {
+    impl<I: Iterator<Item = (u32, u32)>, P: FnMut(f32)> LayoutVisitor for Read<'_, I, P> {
         type Output = Result<()>;
-        fn visit<L: Layout>(self, layout: &L) -> Result<()> {
+        fn visit<L: Layout>(mut self, layout: &L) -> Result<()> {
             match self.terrain.mapped_records() {
                 Some(records) => {
-                    for (h, (x, y)) in self.out.iter_mut().zip(self.posts) {
-                        *h = records.record(layout.index(x, y)).z;
+                    for (x, y) in self.posts {
+                        (self.put)(records.record(layout.index(x, y)).z);
                     }
                     Ok(())
                 }
                 None => {
                     let records = PagerRecords::new(self.terrain);
-                    for (h, (x, y)) in self.out.iter_mut().zip(self.posts) {
-                        *h = records.record(layout.index(x, y)).z;
+                    for (x, y) in self.posts {
+                        (self.put)(records.record(layout.index(x, y)).z);
                     }
                     records.take_error()
                 }
             }
         }
     }
-    terrain.layout().visit(Read { terrain, posts, out })
+    terrain.layout().visit(Read { terrain, posts, put })
 }
 
 /// Morph data with blend 1 and the exact height for every vertex of `vertices`: what a renderer
 /// that does not hold every height draws the strip with.
 pub fn exact_heights(terrain: &TerrainFile, vertices: &[StripVertex], out: &mut Vec<Morph>) -> Result<()> {
-    let mut z = vec![0f32; vertices.len()];
-    read_heights(terrain, vertices.iter().map(|v| (v.x, v.y)), &mut z)?;
     out.clear();
-    out.extend(z.into_iter().map(|z_m| Morph { blend: 1.0, z_m }));
-    Ok(())
+    out.reserve(vertices.len());
+    read_heights(terrain, vertices.iter().map(|v| (v.x, v.y)), |z_m| out.push(Morph { blend: 1.0, z_m }))
 }
 
 /// What the strip asks of the cache: the tiles to load in priority order (at most the pool's

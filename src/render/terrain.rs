@@ -205,7 +205,13 @@ impl TerrainRenderer {
             && tiling.layers() <= limits.max_texture_array_layers
             && tiling.bytes() <= budget;
         let heights = if fits {
-            Heights::Resident(GpuHeights::upload(device, &gpu.queue, terrain, tiling, progress)?)
+            // A budget the adapter cannot honour fails here: say what would help.
+            let what = format!(
+                "making the whole {posts}² grid resident ({} bytes of GPU heights; a smaller GPU memory \
+                 budget pages it through the height cache instead)",
+                tiling.bytes()
+            );
+            Heights::Resident(gpu.scoped(&what, || GpuHeights::upload(device, &gpu.queue, terrain, tiling, progress))?)
         } else {
             let budget = CacheBudget {
                 gpu_bytes: budget,
