@@ -27,7 +27,7 @@ fly low300 low300
 python3 - "$DIR" <<'PY'
 import json, sys
 d = sys.argv[1]
-print("| path | frame ms median / max | render ms median | triangles mean | GPU heights max / budget | height upload median / max | tiles resident median | tiles uploaded | evicted | frames with fallbacks (total) | peak RSS MiB |")
+print("| path | frame ms median / max | render ms median | triangles mean | GPU heights max / budget | height upload median / max | tiles resident median | tiles uploaded | evicted | frames with fallbacks (total) | cache step µs median / max | peak RSS MiB |")
 for name in ["fly300", "cap1g", "low300"]:
     r = json.load(open(f"{d}/{name}_stats.json")); s = r["summary"]; fr = r["frames"]; g = [f["gpu_heights"] for f in fr]
     rss = int(open(f"{d}/{name}.rss").read().split()[-1]) / 1024
@@ -35,5 +35,6 @@ for name in ["fly300", "cap1g", "low300"]:
           f"{s['triangles']['mean']:,.0f} | {max(x['in_use_bytes'] for x in g):,} / {g[0]['budget_bytes']:,} | "
           f"{s['height_upload_bytes']['median']:,.0f} / {max(x['upload_bytes'] for x in g):,} | {s['tiles_resident']['median']:,.0f} | "
           f"{sum(x['tiles_uploaded'] for x in g):,} | {sum(x['evicted'] for x in g):,} | "
-          f"{sum(1 for x in g if x['fallbacks'])} ({sum(x['fallbacks'] for x in g)}) | {rss:,.0f} |")
+          f"{sum(1 for x in g if x['fallbacks'])} ({sum(x['fallbacks'] for x in g)}) | "
+          f"{s['height_step_us']['median']:,.0f} / {s['height_step_us']['max']:,.0f} | {rss:,.0f} |")
 PY

@@ -393,6 +393,9 @@ pub struct HeightCacheStats {
     pub wanted: u64,
     /// Tiles evicted this frame.
     pub evicted: u64,
+    /// The render thread's time in the cache's step this frame (taking finished tiles and writing
+    /// them and the table), microseconds: it never waits for the loader.
+    pub step_us: u64,
 }
 
 /// A filled tile for the renderer to write into slot `slot` (its `slot_posts()²` heights).

@@ -21,6 +21,8 @@ pub struct GpuHeightCache {
     pub texture: wgpu::Texture,
     pub view: wgpu::TextureView,
     pub table: wgpu::Buffer,
+    /// Microseconds the last [`Self::sync`] took.
+    last_step_us: u64,
 }
 
 impl GpuHeightCache {
@@ -55,7 +57,7 @@ impl GpuHeightCache {
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        Ok(GpuHeightCache { cache, texture, view, table })
+        Ok(GpuHeightCache { cache, texture, view, table, last_step_us: 0 })
     }
 
     /// Tells the loader about a new strip seen from `view`.
@@ -66,6 +68,7 @@ impl GpuHeightCache {
     /// This frame's uploads: the finished tiles within the budget and the table when it changed.
     /// Never waits for the loader. Returns the bytes written.
     pub fn sync(&mut self, queue: &wgpu::Queue) -> Result<u64> {
+        let started = std::time::Instant::now();
         let side = self.cache.grid().slot_posts();
         let mut bytes = 0u64;
         let (tiles, table) = self.cache.frame()?;
@@ -90,10 +93,11 @@ impl GpuHeightCache {
             bytes += data.len() as u64;
         }
         self.cache.uploaded();
+        self.last_step_us = started.elapsed().as_micros() as u64;
         Ok(bytes)
     }
 
     pub fn stats(&self) -> HeightCacheStats {
-        self.cache.stats()
+        HeightCacheStats { step_us: self.last_step_us, ..self.cache.stats() }
     }
 }

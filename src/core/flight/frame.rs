@@ -236,6 +236,8 @@ pub struct FlightSummary {
     pub height_upload_bytes: Summary,
     pub tiles_resident: Summary,
     pub height_fallbacks: Summary,
+    /// The render thread's time in the height cache's step, microseconds.
+    pub height_step_us: Summary,
 }
 
 /// A flight: `{"frames": […], "summary": {…}}`.
@@ -283,6 +285,7 @@ impl FlightSummary {
             height_upload_bytes: s(|f| f.gpu_heights.upload_bytes as f64),
             tiles_resident: s(|f| f.gpu_heights.tiles_resident as f64),
             height_fallbacks: s(|f| f.gpu_heights.fallbacks as f64),
+            height_step_us: s(|f| f.gpu_heights.step_us as f64),
         }
     }
 }
