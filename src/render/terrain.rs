@@ -318,24 +318,16 @@ impl TerrainRenderer {
         use wgpu::PrimitiveTopology::{LineStrip, TriangleList, TriangleStrip};
         let (v1, v2) = (VERTEX_BYTES, 2 * VERTEX_BYTES);
         let (m1, m2) = (MORPH_BYTES, 2 * MORPH_BYTES);
-        let terrain_pipeline = pipeline(
-            "terrain",
-            "vs_terrain",
-            &[Some(grid_layout(v1))],
-            TriangleStrip,
-            depth(true, Greater),
-            "fs_terrain",
-            &colour_target,
-        );
-        let terrain_morph_pipeline = pipeline(
-            "terrain morph",
-            "vs_terrain_morph",
-            &[Some(grid_layout(v1)), Some(morph_layout(m1))],
-            TriangleStrip,
-            depth(true, Greater),
-            "fs_terrain",
-            &colour_target,
-        );
+        // A strip's two pipelines for a fragment entry: heights from the resident grid, or carried
+        // by the strip (geomorphing, the height cache).
+        let strip_pipelines = |label: &str, fs: &str, targets: &[Option<wgpu::ColorTargetState>]| {
+            [
+                ("vs_terrain", vec![Some(grid_layout(v1))]),
+                ("vs_terrain_morph", vec![Some(grid_layout(v1)), Some(morph_layout(m1))]),
+            ]
+            .map(|(vs, buffers)| pipeline(label, vs, &buffers, TriangleStrip, depth(true, Greater), fs, targets))
+        };
+        let [terrain_pipeline, terrain_morph_pipeline] = strip_pipelines("terrain", "fs_terrain", &colour_target);
         let wire_pipelines = [v1, v2].map(|stride| {
             pipeline(
                 "wire",
@@ -376,24 +368,7 @@ impl TerrainRenderer {
             "fs_overlay",
             &colour_target,
         );
-        let probe_pipeline = pipeline(
-            "probe",
-            "vs_terrain",
-            &[Some(grid_layout(v1))],
-            TriangleStrip,
-            depth(true, Greater),
-            "fs_probe",
-            &probe_targets,
-        );
-        let probe_morph_pipeline = pipeline(
-            "probe morph",
-            "vs_terrain_morph",
-            &[Some(grid_layout(v1)), Some(morph_layout(m1))],
-            TriangleStrip,
-            depth(true, Greater),
-            "fs_probe",
-            &probe_targets,
-        );
+        let [probe_pipeline, probe_morph_pipeline] = strip_pipelines("probe", "fs_probe", &probe_targets);
 
         let vertices = VertexBuffer::new(device, "relief strip", 1 << 20);
         let morph = VertexBuffer::new(device, "relief strip morph", 1 << 20);
