@@ -153,9 +153,13 @@ impl TileGrid {
     /// ty·T − 1 + j)` clamped to the level, as a level-0 post.
     pub fn texel_post(&self, key: u32, i: u32, j: u32) -> (u32, u32) {
         let (k, tx, ty) = self.decode(key);
-        let last = self.last_post(k) as i64;
-        let at = |t: u32, d: u32| (((t as i64) << self.t_log2) - 1 + d as i64).clamp(0, last) as u32;
-        (at(tx, i) << k, at(ty, j) << k)
+        (self.slot_post(k, tx, i), self.slot_post(k, ty, j))
+    }
+
+    /// Along one axis: the grid post of texel `d` of a level-`k` slot whose tile index is `t`.
+    #[inline]
+    fn slot_post(&self, k: u32, t: u32, d: u32) -> u32 {
+        ((((t as i64) << self.t_log2) - 1 + d as i64).clamp(0, self.last_post(k) as i64) as u32) << k
     }
 
     /// The table's header: per level its first entry (slots `0..16`), then tiles per side.
@@ -173,9 +177,9 @@ impl TileGrid {
     pub fn fill(&self, terrain: &TerrainFile, key: u32, out: &mut [f32]) -> Result<()> {
         let s = self.slot_posts();
         debug_assert_eq!(out.len(), (s * s) as usize);
+        // Decoded once per tile, not per texel.
         let (k, tx, ty) = self.decode(key);
-        let last = self.last_post(k) as i64;
-        let at = move |t: u32, d: u32| ((((t as i64) << self.t_log2) - 1 + d as i64).clamp(0, last) as u32) << k;
+        let at = move |t: u32, d: u32| self.slot_post(k, t, d);
         let mut texels = out.iter_mut();
         read_heights(terrain, (0..s).flat_map(|j| (0..s).map(move |i| (at(tx, i), at(ty, j)))), |z| {
             if let Some(h) = texels.next() {

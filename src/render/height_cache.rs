@@ -8,6 +8,7 @@ use crate::error::Result;
 use crate::format::terrain::TerrainFile;
 use crate::heightcache::{CacheBudget, HeightCache, HeightCacheStats, WantView};
 use crate::refine::{Morph, StripVertex};
+use crate::render::heights::{height_layers, write_layer};
 
 /// GPU memory for heights when none is given: the whole grid stays resident up to this, else the
 /// cache takes this much (bounded by the adapter's texture limits).
@@ -36,21 +37,7 @@ impl GpuHeightCache {
     ) -> Result<GpuHeightCache> {
         let cache = HeightCache::new(terrain, tile_cells, budget)?;
         let side = cache.grid().slot_posts();
-        let texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("relief height cache"),
-            size: wgpu::Extent3d { width: side, height: side, depth_or_array_layers: cache.slots() },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::R32Float,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
-        let view = texture.create_view(&wgpu::TextureViewDescriptor {
-            label: Some("relief height cache"),
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
+        let (texture, view) = height_layers(device, "relief height cache", side, cache.slots());
         let table = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("relief height table"),
             size: cache.grid().table_bytes(),
@@ -73,19 +60,8 @@ impl GpuHeightCache {
         let mut bytes = 0u64;
         let (tiles, table) = self.cache.frame()?;
         for t in &tiles {
-            let data: &[u8] = bytemuck::cast_slice(t.heights);
-            queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture: &self.texture,
-                    mip_level: 0,
-                    origin: wgpu::Origin3d { x: 0, y: 0, z: t.slot },
-                    aspect: wgpu::TextureAspect::All,
-                },
-                data,
-                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * side), rows_per_image: Some(side) },
-                wgpu::Extent3d { width: side, height: side, depth_or_array_layers: 1 },
-            );
-            bytes += data.len() as u64;
+            write_layer(queue, &self.texture, t.slot, side, t.heights);
+            bytes += 4 * t.heights.len() as u64;
         }
         if let Some(table) = table {
             let data: &[u8] = bytemuck::cast_slice(table);

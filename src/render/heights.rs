@@ -103,6 +103,42 @@ pub fn fill_tile(records: &[Record], terrain: &TerrainFile, tiling: &HeightTilin
     terrain.layout().visit(Fill { records, tiling, layer, out });
 }
 
+/// An `R32Float` texture array of `layers` square layers of `side` texels, written with
+/// [`write_layer`], and its array view: the resident grid's tiles and the height cache's slots.
+pub fn height_layers(device: &wgpu::Device, label: &str, side: u32, layers: u32) -> (wgpu::Texture, wgpu::TextureView) {
+    let texture = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d { width: side, height: side, depth_or_array_layers: layers },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::R32Float,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    let view = texture.create_view(&wgpu::TextureViewDescriptor {
+        label: Some(label),
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
+    });
+    (texture, view)
+}
+
+/// Writes one layer (`side²` heights, row-major) of a [`height_layers`] texture.
+pub fn write_layer(queue: &wgpu::Queue, texture: &wgpu::Texture, layer: u32, side: u32, heights: &[f32]) {
+    queue.write_texture(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d { x: 0, y: 0, z: layer },
+            aspect: wgpu::TextureAspect::All,
+        },
+        bytemuck::cast_slice(heights),
+        wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * side), rows_per_image: Some(side) },
+        wgpu::Extent3d { width: side, height: side, depth_or_array_layers: 1 },
+    );
+}
+
 /// The heights texture array and its tiling.
 pub struct GpuHeights {
     pub tiling: HeightTiling,
@@ -123,31 +159,12 @@ impl GpuHeights {
         // Every height goes to the GPU: the mapped records, or the file read whole.
         let records = terrain.records()?;
         let t = tiling.tile_posts;
-        let texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("relief heights"),
-            size: wgpu::Extent3d { width: t, height: t, depth_or_array_layers: tiling.layers() },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::R32Float,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let (texture, view) = height_layers(device, "relief heights", t, tiling.layers());
         let bar = progress.bar("upload", tiling.posts as u64 * tiling.posts as u64, "posts");
         let mut tile = vec![0f32; t as usize * t as usize];
         for layer in 0..tiling.layers() {
             fill_tile(&records, terrain, &tiling, layer, &mut tile);
-            queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture: &texture,
-                    mip_level: 0,
-                    origin: wgpu::Origin3d { x: 0, y: 0, z: layer },
-                    aspect: wgpu::TextureAspect::All,
-                },
-                bytemuck::cast_slice(&tile),
-                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * t), rows_per_image: Some(t) },
-                wgpu::Extent3d { width: t, height: t, depth_or_array_layers: 1 },
-            );
+            write_layer(queue, &texture, layer, t, &tile);
             // Submit per tile so staging memory stays at one tile.
             queue.submit([]);
             let inside_x = (tiling.posts - (layer % tiling.tiles_per_row) * t).min(t) as u64;
@@ -155,11 +172,6 @@ impl GpuHeights {
             bar.inc(inside_x * inside_y);
         }
         bar.finish_and_clear();
-        let view = texture.create_view(&wgpu::TextureViewDescriptor {
-            label: Some("relief heights"),
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
         Ok(GpuHeights { tiling, texture, view })
     }
 }

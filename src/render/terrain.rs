@@ -122,8 +122,6 @@ pub struct TerrainRenderer {
     heights: Heights,
     /// Exact heights computed here for a strip that came without them (cache only).
     own_morph: Vec<Morph>,
-    /// Bytes of height tiles and table sent by the last [`Self::sync_heights`].
-    last_heights_upload: u64,
     shade: ShadeParams,
     /// The DEM's posts in the grid, inclusive `[x0, y0, x1, y1]`.
     valid_window: [u32; 4],
@@ -375,7 +373,6 @@ impl TerrainRenderer {
         Ok(TerrainRenderer {
             heights,
             own_morph: Vec::new(),
-            last_heights_upload: 0,
             shade,
             valid_window: {
                 let [x0, y0, x1, y1] = h.valid_window;
@@ -433,11 +430,7 @@ impl TerrainRenderer {
                 tiles_resident: h.tiling.layers() as u64,
                 ..Default::default()
             },
-            Heights::Cached { pool, .. } => {
-                let mut s = pool.stats();
-                s.upload_bytes = self.last_heights_upload;
-                s
-            }
+            Heights::Cached { pool, .. } => pool.stats(),
         }
     }
 
@@ -458,8 +451,7 @@ impl TerrainRenderer {
             let heights = if strip.morph.len() == strip.vertices.len() { &strip.morph } else { &self.own_morph };
             pool.want(&strip.vertices, heights, WantView::new(camera, terrain.header().spacing_m));
         }
-        self.last_heights_upload = pool.sync(&gpu.queue)?;
-        Ok(self.last_heights_upload)
+        pool.sync(&gpu.queue)
     }
 
     pub fn shade_params(&self) -> &ShadeParams {
