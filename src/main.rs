@@ -81,6 +81,12 @@ enum Command {
         #[command(subcommand)]
         kind: cli::pages::Command,
     },
+    /// Serve files over HTTP/1.1 with byte ranges (for reading terrains remotely and benchmarking it).
+    ///
+    /// Each FILE is served under its file name; the URLs are printed one per line, then requests
+    /// are answered until Ctrl-C. GET and HEAD, Range (206, 416), ETag and If-Match; each request
+    /// re-reads the file. --latency-ms delays every response to emulate a remote store.
+    Serve(cli::serve::Args),
 }
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
@@ -95,6 +101,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Path { kind } => cli::path::run(kind),
         Command::Mesh { kind } => cli::mesh::run(kind),
         Command::Pages { kind } => cli::pages::run(kind),
+        Command::Serve(a) => cli::serve::run(a),
     }
 }
 

@@ -28,6 +28,7 @@ pub mod pages;
 pub mod path;
 pub mod refine;
 pub mod render;
+pub mod serve;
 pub mod show;
 pub mod verify;
 

@@ -47,6 +47,10 @@ pub enum Error {
     /// A page layout (`pages::two_factor`) that could not be computed.
     #[error("page layout: {0}")]
     Layout(String),
+    /// A remote file (HTTP range requests) that could not be read: the server's answer, a
+    /// connection that kept failing after the retries, or a file that changed under us.
+    #[error("{url}: {problem}")]
+    Remote { url: String, problem: String },
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
     /// No usable GPU, or the GPU refused a request (creation, limits, readback).
@@ -86,6 +90,11 @@ impl Error {
     /// A figure (`plot`) that cannot be drawn.
     pub fn plot(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
         Error::Plot { path: path.into(), problem: problem.into() }
+    }
+
+    /// A remote file that could not be read.
+    pub fn remote(url: &str, problem: impl Into<String>) -> Self {
+        Error::Remote { url: url.into(), problem: problem.into() }
     }
 
     /// A mesh file whose content is wrong.

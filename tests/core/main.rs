@@ -37,3 +37,4 @@ mod backends;
 mod dem_readers;
 mod formats;
 mod height_cache;
+mod remote;

@@ -251,8 +251,27 @@ impl TerrainFile {
     /// the exact file size) to be read with `access`. The pager's blocks are runs of
     /// [`RECORDS_PER_BLOCK`] records. The payload checksum is not checked here (see
     /// [`Self::verify_payload`]).
+    ///
+    /// A remote location (`http(s)://`, `s3://`) cannot be mapped: map access reads it instead.
     pub fn open_with(path: &Path, access: Access) -> Result<TerrainFile> {
+        let access = if access == Access::Map && crate::pager::remote::is_remote(path) { Access::Read } else { access };
         let source = source::open(path, access.source_kind())?;
+        TerrainFile::open_source(path, source, access)
+    }
+
+    /// A remote terrain file (`http(s)://`, `s3://`) read as `options` say (cache, requests in
+    /// flight), with read or pool access.
+    pub fn open_remote(
+        location: &str,
+        options: crate::pager::remote::RemoteOptions,
+        access: Access,
+    ) -> Result<TerrainFile> {
+        let access = if access == Access::Map { Access::Read } else { access };
+        let source = Arc::new(crate::pager::remote::RemoteFile::open(location, options)?);
+        TerrainFile::open_source(Path::new(location), source, access)
+    }
+
+    fn open_source(path: &Path, source: Arc<dyn source::Source>, access: Access) -> Result<TerrainFile> {
         let header: Header = read_header(&*source)?;
         let table = FixedBlocks {
             first: header.payload_offset,
@@ -279,6 +298,11 @@ impl TerrainFile {
 
     pub fn grid(&self) -> Grid {
         self.header.grid()
+    }
+
+    /// The remote file the records come from, where the terrain is remote.
+    pub fn remote(&self) -> Option<&crate::pager::remote::RemoteFile> {
+        self.pager.source().remote()
     }
 
     /// The pager the records are read through.

@@ -23,6 +23,8 @@ pub mod lru;
 pub mod observer;
 pub mod os;
 pub mod pool;
+pub mod remote;
+pub mod serve;
 pub mod source;
 
 use std::ops::Deref;

@@ -51,10 +51,19 @@ pub trait Source: Send + Sync {
     /// Drops the file's pages from the OS page cache (a mapping's resident pages first), so the
     /// next reads come from storage.
     fn evict(&self) -> Result<()>;
+    /// The remote file behind this source, where it is one.
+    fn remote(&self) -> Option<&super::remote::RemoteFile> {
+        None
+    }
 }
 
-/// Opens `path` as a source of the given kind.
+/// Opens `path` as a source of the given kind. A remote location (`http(s)://`, `s3://`, see
+/// [`super::remote`]) is read with range requests through its local cache, whatever the kind.
 pub fn open(path: &Path, kind: SourceKind) -> Result<std::sync::Arc<dyn Source>> {
+    if super::remote::is_remote(path) {
+        let location = path.to_string_lossy();
+        return Ok(std::sync::Arc::new(super::remote::RemoteFile::open(&location, Default::default())?));
+    }
     Ok(match kind {
         SourceKind::Map => std::sync::Arc::new(MappedFile::open(path)?),
         SourceKind::Read => std::sync::Arc::new(ReadFile::open(path)?),

@@ -1,0 +1,70 @@
+//! `relief serve`: terrain files over HTTP/1.1 with byte ranges, so that a terrain can be read
+//! remotely (`http://…` in place of a FILE) and remote reading benchmarked, optionally with an
+//! emulated round trip. The server is the library's ([`relief::pager::serve`]).
+
+use std::net::{IpAddr, SocketAddr};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::bail;
+use relief::pager::serve::{ServeOptions, Server};
+
+use super::fmt_bytes;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Files to serve, each under its file name (http://HOST:PORT/NAME); each request re-reads
+    /// the file, so a file replaced on disk is served anew (with a new ETag).
+    #[arg(required = true, value_name = "FILE")]
+    pub files: Vec<PathBuf>,
+    /// Address to listen on (0.0.0.0 or :: for every interface).
+    #[arg(long, value_name = "IP", default_value = "127.0.0.1")]
+    pub bind: IpAddr,
+    /// TCP port to listen on (0: any free port; the URLs printed say which).
+    #[arg(long, default_value_t = 8080)]
+    pub port: u16,
+    /// Latency added before each response, milliseconds, to emulate a remote store (every
+    /// request costs it once; concurrent requests wait concurrently).
+    #[arg(long, value_name = "MS", default_value_t = 0.0)]
+    pub latency_ms: f64,
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    if !(a.latency_ms >= 0.0 && a.latency_ms.is_finite() && a.latency_ms < 1e9) {
+        bail!("--latency-ms: expected milliseconds ≥ 0, got {}", a.latency_ms);
+    }
+    let mut files = Vec::with_capacity(a.files.len());
+    for path in &a.files {
+        let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
+            bail!("{}: no file name (or not UTF-8) to serve it under", path.display());
+        };
+        if let Some((_, other)) = files.iter().find(|(n, _): &&(String, PathBuf)| n == name) {
+            bail!(
+                "{} and {}: two files named {name}; serve them from separate commands",
+                other.display(),
+                path.display()
+            );
+        }
+        files.push((name.to_string(), path.clone()));
+    }
+    let names: Vec<String> = files.iter().map(|(n, _)| n.clone()).collect();
+    let options = ServeOptions { latency: Duration::from_secs_f64(a.latency_ms / 1000.0), ..Default::default() };
+    let server = Server::start(files, SocketAddr::new(a.bind, a.port), options)?;
+    for name in &names {
+        println!("{}", server.url(name));
+    }
+    if a.bind.is_unspecified() {
+        eprintln!("listening on every interface, port {}; Ctrl-C to stop", server.addr().port());
+    } else {
+        eprintln!("listening on {}; Ctrl-C to stop", server.addr());
+    }
+    // Ctrl-C, SIGTERM and SIGHUP raise the cancellation flag (main's handler); serve until then.
+    while relief::sys::cancel::check().is_ok() {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let (requests, bytes) = (server.requests(), server.bytes_sent());
+    server.stop();
+    eprintln!("stopped after {requests} requests, {} sent", fmt_bytes(bytes));
+    Ok(ExitCode::SUCCESS)
+}

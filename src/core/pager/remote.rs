@@ -1,0 +1,757 @@
+//! Files read over the network with HTTP range requests (RFC 9110 §14): a [`RemoteFile`] is a
+//! [`Source`] whose bytes come from a web server or an object store's HTTP endpoint, through a
+//! local on-disk cache of fetched pages ([`DiskCache`]).
+//!
+//! - **Opening costs one request**: a range of the file's first [`RemoteOptions::first_range`]
+//!   bytes, which tells the length and the ETag and holds the header and, in a hierarchical
+//!   layout, the coarse levels (ARCHITECTURE.md, "Remote terrains").
+//! - **Every answer is validated**: a 206 whose `Content-Range` is exactly the range asked for, of
+//!   a file of the length and ETag seen at the open (and `If-Match` sent, so a server that knows
+//!   answers 412). A file that changes under us is an error, never a mixed frame.
+//! - **Failures are retried** with exponential backoff (dropped connections, 5xx, 429, short
+//!   bodies); a 4xx or a server that ignores `Range` is a one-line error.
+//! - **Requests are coalesced and bounded in flight**: [`RemoteFile::fetch_runs`] merges page runs
+//!   closer than [`RemoteOptions::coalesce_gap`] and runs at most
+//!   [`RemoteOptions::max_in_flight`] requests at once.
+//!
+//! `s3://bucket/key` is read through the bucket's HTTPS endpoint (`AWS_ENDPOINT_URL` or the
+//! virtual-hosted AWS one for `AWS_REGION`): public objects only, requests are not signed.
+
+use std::fs::File;
+use std::io::Read;
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+use super::source::{Source, SourceKind};
+use crate::error::{Error, IoContext, Result};
+
+/// The cache's granule: pages of this many bytes, fetched and kept whole.
+pub const PAGE_BYTES: u64 = 4096;
+
+/// Whether `path` names a remote file (`http://`, `https://` or `s3://`).
+pub fn is_remote(path: &Path) -> bool {
+    let s = path.to_string_lossy();
+    s.starts_with("http://") || s.starts_with("https://") || s.starts_with("s3://")
+}
+
+/// The HTTP(S) address of a remote location (`s3://bucket/key` through its endpoint).
+pub fn http_url(location: &str) -> Result<String> {
+    if location.starts_with("http://") || location.starts_with("https://") {
+        return Ok(location.to_string());
+    }
+    let Some(rest) = location.strip_prefix("s3://") else {
+        return Err(Error::remote(location, "not an http://, https:// or s3:// address"));
+    };
+    let Some((bucket, key)) = rest.split_once('/').filter(|(b, k)| !b.is_empty() && !k.is_empty()) else {
+        return Err(Error::remote(location, "expected s3://BUCKET/KEY"));
+    };
+    Ok(match std::env::var("AWS_ENDPOINT_URL_S3").or_else(|_| std::env::var("AWS_ENDPOINT_URL")) {
+        // A custom endpoint (MinIO, Ceph, R2, …) in path style, as their users configure it.
+        Ok(endpoint) => format!("{}/{bucket}/{key}", endpoint.trim_end_matches('/')),
+        Err(_) => {
+            let region = std::env::var("AWS_REGION").or_else(|_| std::env::var("AWS_DEFAULT_REGION"));
+            let region = region.unwrap_or_else(|_| "us-east-1".into());
+            format!("https://{bucket}.s3.{region}.amazonaws.com/{key}")
+        }
+    })
+}
+
+/// How a remote file is read.
+#[derive(Clone, Debug)]
+pub struct RemoteOptions {
+    /// Bytes asked for by the opening request (the header and the coarse levels).
+    pub first_range: u64,
+    /// Requests in flight at once.
+    pub max_in_flight: usize,
+    /// Page runs closer than this many bytes are fetched in one request (the gap with them).
+    pub coalesce_gap: u64,
+    /// The largest single request.
+    pub max_request: u64,
+    /// Attempts per request before its error is returned.
+    pub attempts: u32,
+    /// The first retry's delay (doubled each time).
+    pub backoff: Duration,
+    /// Timeout of one request, from connect to the last body byte.
+    pub timeout: Duration,
+    /// Where fetched pages are kept (`None`: a temporary cache, removed when the file is closed).
+    pub cache_dir: Option<PathBuf>,
+    /// The cache's size bound, bytes (every cached file together).
+    pub cache_bytes: u64,
+}
+
+impl Default for RemoteOptions {
+    fn default() -> Self {
+        RemoteOptions {
+            first_range: 1 << 20,
+            max_in_flight: 8,
+            coalesce_gap: 64 << 10,
+            max_request: 4 << 20,
+            attempts: 6,
+            backoff: Duration::from_millis(20),
+            timeout: Duration::from_secs(30),
+            cache_dir: default_cache_dir(),
+            cache_bytes: 8 << 30,
+        }
+    }
+}
+
+/// `$RELIEF_CACHE_DIR`, else `$XDG_CACHE_HOME/relief`, else `~/.cache/relief`.
+pub fn default_cache_dir() -> Option<PathBuf> {
+    if let Some(d) = std::env::var_os("RELIEF_CACHE_DIR") {
+        return Some(PathBuf::from(d));
+    }
+    if let Some(d) = std::env::var_os("XDG_CACHE_HOME") {
+        return Some(PathBuf::from(d).join("relief"));
+    }
+    std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache/relief"))
+}
+
+/// What a remote file has cost so far.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq, Eq)]
+pub struct RemoteStats {
+    /// Requests answered (retries included).
+    pub requests: u64,
+    /// Body bytes received.
+    pub bytes: u64,
+    /// Requests that failed and were retried.
+    pub retries: u64,
+    /// Pages read from the local cache instead of the network.
+    pub cache_hit_pages: u64,
+}
+
+#[derive(Default)]
+struct Counters {
+    requests: AtomicU64,
+    bytes: AtomicU64,
+    retries: AtomicU64,
+    cache_hit_pages: AtomicU64,
+}
+
+/// A remote file of fixed length and ETag, read with range requests through a page cache.
+pub struct RemoteFile {
+    location: String,
+    url: String,
+    path: PathBuf,
+    len: u64,
+    etag: Option<String>,
+    agent: ureq::Agent,
+    options: RemoteOptions,
+    cache: DiskCache,
+    counters: Counters,
+    latency: LatencyEstimate,
+}
+
+/// Why one attempt failed: worth retrying or not.
+enum Attempt {
+    Retry(String),
+    Fatal(Error),
+}
+
+impl RemoteFile {
+    /// Opens `location` with one request for its first bytes, which are cached.
+    pub fn open(location: &str, options: RemoteOptions) -> Result<RemoteFile> {
+        let url = http_url(location)?;
+        let agent: ureq::Agent = ureq::Agent::config_builder()
+            .timeout_global(Some(options.timeout))
+            .http_status_as_error(false)
+            .max_idle_connections_per_host(options.max_in_flight.max(1) * 2)
+            .build()
+            .into();
+        let mut file = RemoteFile {
+            location: location.to_string(),
+            url,
+            path: PathBuf::from(location),
+            len: 0,
+            etag: None,
+            agent,
+            cache: DiskCache::temporary(location)?,
+            counters: Counters::default(),
+            latency: LatencyEstimate::default(),
+            options,
+        };
+        let want = file.options.first_range.max(PAGE_BYTES);
+        let (first, len, etag) = file.with_retries(|f| f.attempt_open(want))?;
+        file.len = len;
+        file.etag = etag;
+        file.cache = match &file.options.cache_dir {
+            Some(dir) => DiskCache::open(dir, location, len, file.etag.as_deref(), file.options.cache_bytes)?,
+            None => DiskCache::temporary(location)?,
+        };
+        file.cache.resize(len)?;
+        file.cache.put(0, &first)?;
+        Ok(file)
+    }
+
+    /// The location as given (`http://…`, `s3://…`).
+    pub fn location(&self) -> &str {
+        &self.location
+    }
+
+    pub fn etag(&self) -> Option<&str> {
+        self.etag.as_deref()
+    }
+
+    pub fn options(&self) -> &RemoteOptions {
+        &self.options
+    }
+
+    pub fn stats(&self) -> RemoteStats {
+        let c = &self.counters;
+        RemoteStats {
+            requests: c.requests.load(Ordering::Relaxed),
+            bytes: c.bytes.load(Ordering::Relaxed),
+            retries: c.retries.load(Ordering::Relaxed),
+            cache_hit_pages: c.cache_hit_pages.load(Ordering::Relaxed),
+        }
+    }
+
+    /// The median time of a request so far, ms (0 before the first).
+    pub fn median_request_ms(&self) -> f64 {
+        self.latency.median_ms()
+    }
+
+    /// The local cache.
+    pub fn cache(&self) -> &DiskCache {
+        &self.cache
+    }
+
+    fn with_retries<T>(&self, mut f: impl FnMut(&Self) -> std::result::Result<T, Attempt>) -> Result<T> {
+        let mut delay = self.options.backoff;
+        let attempts = self.options.attempts.max(1);
+        for k in 1..=attempts {
+            match f(self) {
+                Ok(v) => return Ok(v),
+                Err(Attempt::Fatal(e)) => return Err(e),
+                Err(Attempt::Retry(why)) if k == attempts => {
+                    return Err(Error::remote(&self.location, format!("{why} (gave up after {attempts} attempts)")))
+                }
+                Err(Attempt::Retry(_)) => {
+                    self.counters.retries.fetch_add(1, Ordering::Relaxed);
+                    std::thread::sleep(delay);
+                    delay = (delay * 2).min(Duration::from_secs(2));
+                }
+            }
+        }
+        unreachable!("the last attempt returns")
+    }
+
+    fn request(&self, range: &str) -> std::result::Result<ureq::http::Response<ureq::Body>, Attempt> {
+        let mut req = self.agent.get(&self.url).header("Range", range);
+        if let Some(etag) = &self.etag {
+            req = req.header("If-Match", etag);
+        }
+        self.counters.requests.fetch_add(1, Ordering::Relaxed);
+        let resp = req.call().map_err(|e| match e {
+            ureq::Error::Io(_) | ureq::Error::Timeout(_) | ureq::Error::ConnectionFailed | ureq::Error::Protocol(_) => {
+                Attempt::Retry(format!("request failed: {e}"))
+            }
+            ureq::Error::HostNotFound => Attempt::Fatal(Error::remote(&self.location, "host not found")),
+            e => Attempt::Fatal(Error::remote(&self.location, format!("request failed: {e}"))),
+        })?;
+        let status = resp.status().as_u16();
+        match status {
+            200 | 206 => Ok(resp),
+            412 => Err(Attempt::Fatal(self.changed("the server refused the open-time ETag (412)"))),
+            408 | 429 | 500..=599 => Err(Attempt::Retry(format!("server answered {status}"))),
+            404 => Err(Attempt::Fatal(Error::remote(&self.location, "not found on the server (404)"))),
+            _ => Err(Attempt::Fatal(Error::remote(&self.location, format!("server answered {status}")))),
+        }
+    }
+
+    fn changed(&self, why: &str) -> Error {
+        Error::remote(&self.location, format!("changed on the server while being read: {why}"))
+    }
+
+    fn check_etag(&self, resp: &ureq::http::Response<ureq::Body>) -> std::result::Result<(), Attempt> {
+        let now = header(resp, "etag");
+        match (&self.etag, now) {
+            (Some(then), Some(now)) if *then != now => {
+                Err(Attempt::Fatal(self.changed(&format!("ETag {then}, now {now}"))))
+            }
+            (Some(_), None) => Err(Attempt::Fatal(self.changed("the ETag disappeared"))),
+            _ => Ok(()),
+        }
+    }
+
+    fn attempt_open(&self, want: u64) -> std::result::Result<(Vec<u8>, u64, Option<String>), Attempt> {
+        let t0 = Instant::now();
+        let resp = self.request(&format!("bytes=0-{}", want - 1))?;
+        let etag = header(&resp, "etag");
+        let status = resp.status().as_u16();
+        let (len, body_len) = if status == 206 {
+            let (a, b, total) =
+                content_range(&resp).ok_or_else(|| self.bad_answer("206 without a valid Content-Range"))?;
+            if a != 0 || b + 1 > total || (b + 1 != want.min(total)) {
+                return Err(Attempt::Fatal(self.bad_range(0, want.min(total), a, b)));
+            }
+            (total, b + 1)
+        } else {
+            // 200: the whole file, acceptable only when it is no longer than what was asked.
+            let n = content_length(&resp).ok_or_else(|| self.bad_answer("200 without Content-Length"))?;
+            if n > want {
+                return Err(Attempt::Fatal(self.ignores_range()));
+            }
+            (n, n)
+        };
+        let body = self.read_body(resp, body_len)?;
+        self.latency.add(t0.elapsed());
+        Ok((body, len, etag))
+    }
+
+    fn bad_answer(&self, why: &str) -> Attempt {
+        Attempt::Fatal(Error::remote(&self.location, format!("bad answer from the server: {why}")))
+    }
+
+    fn bad_range(&self, start: u64, end: u64, a: u64, b: u64) -> Error {
+        Error::remote(
+            &self.location,
+            format!("the server sent bytes {a}-{b} for the range {start}-{}", end.saturating_sub(1)),
+        )
+    }
+
+    fn ignores_range(&self) -> Error {
+        Error::remote(
+            &self.location,
+            "the server ignores Range requests (answered 200 with the whole file); serve it with one that \
+             supports byte ranges (e.g. `relief serve`)",
+        )
+    }
+
+    fn read_body(&self, resp: ureq::http::Response<ureq::Body>, n: u64) -> std::result::Result<Vec<u8>, Attempt> {
+        let mut body = vec![0u8; n as usize];
+        let mut reader = resp.into_body().into_with_config().limit(n.saturating_add(1)).reader();
+        let mut got = 0usize;
+        while got < body.len() {
+            match reader.read(&mut body[got..]) {
+                Ok(0) => break,
+                Ok(k) => got += k,
+                Err(e) => {
+                    self.counters.bytes.fetch_add(got as u64, Ordering::Relaxed);
+                    return Err(Attempt::Retry(format!("short answer: {got} of {n} bytes ({e})")));
+                }
+            }
+        }
+        self.counters.bytes.fetch_add(got as u64, Ordering::Relaxed);
+        if got < body.len() {
+            return Err(Attempt::Retry(format!("short answer: {got} of {n} bytes")));
+        }
+        Ok(body)
+    }
+
+    /// Bytes `start..end` in one request (retried), validated.
+    pub fn fetch(&self, start: u64, end: u64) -> Result<Vec<u8>> {
+        if start >= end || end > self.len {
+            return Err(Error::Truncated { path: self.path.clone(), expected: end, found: self.len });
+        }
+        self.with_retries(|f| {
+            let t0 = Instant::now();
+            let resp = f.request(&format!("bytes={start}-{}", end - 1))?;
+            f.check_etag(&resp)?;
+            if resp.status().as_u16() == 200 {
+                if start == 0 && end == f.len {
+                    let body = f.read_body(resp, end)?;
+                    return Ok(body);
+                }
+                return Err(Attempt::Fatal(f.ignores_range()));
+            }
+            let (a, b, total) =
+                content_range(&resp).ok_or_else(|| f.bad_answer("206 without a valid Content-Range"))?;
+            if total != f.len {
+                return Err(Attempt::Fatal(f.changed(&format!("length {} bytes, now {total}", f.len))));
+            }
+            if a != start || b + 1 != end {
+                return Err(Attempt::Fatal(f.bad_range(start, end, a, b)));
+            }
+            let body = f.read_body(resp, end - start)?;
+            f.latency.add(t0.elapsed());
+            Ok(body)
+        })
+    }
+
+    /// The whole pages `first..end` (page numbers), from the cache where present, else fetched
+    /// (coalesced runs, bounded in flight) and cached. Calls `got(page, bytes)` for every run of
+    /// pages it has, in no particular order; the bytes are whole pages except at the file's end.
+    pub fn fetch_runs(&self, runs: &[(u64, u64)], mut got: impl FnMut(u64, &[u8]) -> Result<()>) -> Result<()> {
+        let mut missing = Vec::new();
+        for &(first, end) in runs {
+            let mut p = first;
+            while p < end {
+                let present = self.cache.has(p)?;
+                let mut q = p + 1;
+                while q < end && self.cache.has(q)? == present {
+                    q += 1;
+                }
+                if present {
+                    let bytes = self.cache.get(p * PAGE_BYTES, (q * PAGE_BYTES).min(self.len))?;
+                    self.counters.cache_hit_pages.fetch_add(q - p, Ordering::Relaxed);
+                    got(p, &bytes)?;
+                } else {
+                    missing.push((p, q));
+                }
+                p = q;
+            }
+        }
+        let requests =
+            coalesce(&mut missing, self.options.coalesce_gap / PAGE_BYTES, self.options.max_request / PAGE_BYTES);
+        let results = std::sync::Mutex::new(Vec::with_capacity(requests.len()));
+        let next = AtomicU64::new(0);
+        let workers = self.options.max_in_flight.clamp(1, requests.len().max(1));
+        std::thread::scope(|s| {
+            for _ in 0..workers {
+                s.spawn(|| loop {
+                    let k = next.fetch_add(1, Ordering::Relaxed) as usize;
+                    let Some(&(p, q)) = requests.get(k) else { break };
+                    let r = self.fetch(p * PAGE_BYTES, (q * PAGE_BYTES).min(self.len));
+                    let failed = r.is_err();
+                    results.lock().unwrap_or_else(|e| e.into_inner()).push((p, r));
+                    if failed {
+                        break;
+                    }
+                });
+            }
+        });
+        for (p, r) in results.into_inner().unwrap_or_else(|e| e.into_inner()) {
+            let bytes = r?;
+            self.cache.put(p * PAGE_BYTES, &bytes)?;
+            got(p, &bytes)?;
+        }
+        Ok(())
+    }
+}
+
+/// Merges sorted-or-not page runs into requests: runs closer than `gap` pages join (the pages
+/// between them are fetched too), no request longer than `max` pages.
+pub fn coalesce(runs: &mut [(u64, u64)], gap: u64, max: u64) -> Vec<(u64, u64)> {
+    runs.sort_unstable();
+    let mut out: Vec<(u64, u64)> = Vec::new();
+    for &(a, b) in runs.iter() {
+        match out.last_mut() {
+            Some(last) if a <= last.1 + gap && b.max(last.1) - last.0 <= max.max(1) => last.1 = last.1.max(b),
+            _ => out.push((a, b)),
+        }
+    }
+    out
+}
+
+fn header(resp: &ureq::http::Response<ureq::Body>, name: &str) -> Option<String> {
+    resp.headers().get(name).and_then(|v| v.to_str().ok()).map(str::to_string)
+}
+
+fn content_length(resp: &ureq::http::Response<ureq::Body>) -> Option<u64> {
+    header(resp, "content-length")?.trim().parse().ok()
+}
+
+/// `Content-Range: bytes a-b/len` → (a, b, len).
+fn content_range(resp: &ureq::http::Response<ureq::Body>) -> Option<(u64, u64, u64)> {
+    let v = header(resp, "content-range")?;
+    let rest = v.trim().strip_prefix("bytes ")?;
+    let (range, total) = rest.split_once('/')?;
+    let (a, b) = range.split_once('-')?;
+    let (a, b, total) = (a.trim().parse().ok()?, b.trim().parse().ok()?, total.trim().parse().ok()?);
+    (a <= b && b < total).then_some((a, b, total))
+}
+
+/// Median of the request times seen (a small reservoir).
+#[derive(Default)]
+struct LatencyEstimate {
+    samples: std::sync::Mutex<Vec<f64>>,
+}
+
+impl LatencyEstimate {
+    fn add(&self, d: Duration) {
+        let mut s = self.samples.lock().unwrap_or_else(|e| e.into_inner());
+        if s.len() < 4096 {
+            s.push(d.as_secs_f64() * 1e3);
+        }
+    }
+
+    fn median_ms(&self) -> f64 {
+        let mut s = self.samples.lock().unwrap_or_else(|e| e.into_inner()).clone();
+        if s.is_empty() {
+            return 0.0;
+        }
+        s.sort_by(f64::total_cmp);
+        s[s.len() / 2]
+    }
+}
+
+impl Source for RemoteFile {
+    fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn len(&self) -> u64 {
+        self.len
+    }
+
+    fn kind(&self) -> SourceKind {
+        SourceKind::Read
+    }
+
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> Result<()> {
+        let end = offset.checked_add(buf.len() as u64).filter(|&e| e <= self.len).ok_or_else(|| Error::Truncated {
+            path: self.path.clone(),
+            expected: offset.saturating_add(buf.len() as u64),
+            found: self.len,
+        })?;
+        if buf.is_empty() {
+            return Ok(());
+        }
+        let (first, last) = (offset / PAGE_BYTES, (end - 1) / PAGE_BYTES);
+        self.fetch_runs(&[(first, last + 1)], |p, bytes| {
+            // Copy the overlap of the run [p·page, p·page + len) with [offset, end).
+            let run_start = p * PAGE_BYTES;
+            let (a, b) = (offset.max(run_start), end.min(run_start + bytes.len() as u64));
+            if a < b {
+                buf[(a - offset) as usize..(b - offset) as usize]
+                    .copy_from_slice(&bytes[(a - run_start) as usize..(b - run_start) as usize]);
+            }
+            Ok(())
+        })
+    }
+
+    fn advise_random(&self) -> Result<()> {
+        Ok(())
+    }
+
+    fn remote(&self) -> Option<&RemoteFile> {
+        Some(self)
+    }
+
+    /// Drops nothing: the local cache is what makes a remote file cheap to read again.
+    fn evict(&self) -> Result<()> {
+        Ok(())
+    }
+}
+
+/// The local cache of a remote file's pages: a sparse file of the remote file's length (pages at
+/// their own offsets) and a map of one byte per page (1: present), in a directory named by the
+/// location's hash, with the length and ETag it holds pages of.
+///
+/// Safe to share between processes: a page is written, synced, and only then marked present, and
+/// two processes write the same bytes for the same page (same length and ETag). A cache for
+/// another version of the file is replaced whole (a new directory renamed into place). The bound
+/// is kept by removing the least recently opened files' caches when one is opened, and by no
+/// longer caching (only fetching) once this file alone would pass it.
+pub struct DiskCache {
+    dir: PathBuf,
+    data: File,
+    have: File,
+    pages: AtomicU64,
+    limit: u64,
+    written: AtomicU64,
+    _temp: Option<tempfile::TempDir>,
+}
+
+#[derive(serde::Serialize, serde::Deserialize, PartialEq, Debug)]
+struct CacheMeta {
+    location: String,
+    len: u64,
+    etag: Option<String>,
+}
+
+impl DiskCache {
+    /// A cache in a temporary directory, removed with it.
+    fn temporary(location: &str) -> Result<DiskCache> {
+        let temp = tempfile::Builder::new()
+            .prefix("relief-remote-")
+            .tempdir()
+            .map_err(|e| Error::remote(location, format!("cannot make a temporary cache: {e}")))?;
+        let dir = temp.path().to_path_buf();
+        let (data, have) = Self::files(&dir, true)?;
+        Ok(DiskCache {
+            dir,
+            data,
+            have,
+            pages: AtomicU64::new(0),
+            limit: u64::MAX,
+            written: AtomicU64::new(0),
+            _temp: Some(temp),
+        })
+    }
+
+    fn files(dir: &Path, create: bool) -> Result<(File, File)> {
+        let open = |name: &str| {
+            let p = dir.join(name);
+            std::fs::OpenOptions::new().read(true).write(true).create(create).truncate(false).open(&p).at(&p)
+        };
+        Ok((open("data")?, open("have")?))
+    }
+
+    /// The cache of `location` (of `len` bytes and `etag`) under `root`, made or replaced as needed.
+    pub fn open(root: &Path, location: &str, len: u64, etag: Option<&str>, limit: u64) -> Result<DiskCache> {
+        std::fs::create_dir_all(root).at(root)?;
+        let key = format!("{:016x}", xxhash_rust::xxh3::xxh3_64(location.as_bytes()));
+        let dir = root.join(&key);
+        let meta = CacheMeta { location: location.into(), len, etag: etag.map(str::to_string) };
+        let current =
+            std::fs::read(dir.join("meta.json")).ok().and_then(|b| serde_json::from_slice::<CacheMeta>(&b).ok());
+        if current.as_ref() != Some(&meta) {
+            // Build the new cache beside it and rename it into place, so a reader never sees a
+            // meta of one version with pages of another.
+            let tmp = root.join(format!("{key}.new-{}", std::process::id()));
+            let _ = std::fs::remove_dir_all(&tmp);
+            std::fs::create_dir_all(&tmp).at(&tmp)?;
+            let (data, have) = Self::files(&tmp, true)?;
+            data.set_len(len).at(&tmp.join("data"))?;
+            have.set_len(len.div_ceil(PAGE_BYTES)).at(&tmp.join("have"))?;
+            let m = serde_json::to_vec(&meta).map_err(|e| Error::remote(location, format!("cache meta: {e}")))?;
+            std::fs::write(tmp.join("meta.json"), m).at(&tmp.join("meta.json"))?;
+            if dir.exists() {
+                let old = root.join(format!("{key}.old-{}", std::process::id()));
+                let _ = std::fs::rename(&dir, &old);
+                let _ = std::fs::remove_dir_all(&old);
+            }
+            if std::fs::rename(&tmp, &dir).is_err() {
+                // Another process put its cache there first: use it if it is of this version.
+                let _ = std::fs::remove_dir_all(&tmp);
+                let theirs = std::fs::read(dir.join("meta.json"))
+                    .ok()
+                    .and_then(|b| serde_json::from_slice::<CacheMeta>(&b).ok());
+                if theirs.as_ref() != Some(&meta) {
+                    return Err(Error::remote(
+                        location,
+                        format!("cache {} is in use by another version", dir.display()),
+                    ));
+                }
+            }
+        } else {
+            // Mark as recently used (the bound removes the least recently opened first).
+            let _ =
+                std::fs::File::open(dir.join("meta.json")).and_then(|f| f.set_modified(std::time::SystemTime::now()));
+        }
+        let (data, have) = Self::files(&dir, false)?;
+        Self::keep_bound(root, &key, limit);
+        let written = have_count(&have) * PAGE_BYTES;
+        Ok(DiskCache {
+            dir,
+            data,
+            have,
+            pages: AtomicU64::new(len.div_ceil(PAGE_BYTES)),
+            limit,
+            written: AtomicU64::new(written),
+            _temp: None,
+        })
+    }
+
+    /// Removes the least recently opened caches under `root` (never `keep`) while they hold more
+    /// than `limit` bytes together.
+    fn keep_bound(root: &Path, keep: &str, limit: u64) {
+        let Ok(entries) = std::fs::read_dir(root) else { return };
+        let mut caches: Vec<(std::time::SystemTime, PathBuf, u64)> = entries
+            .flatten()
+            .filter(|e| e.file_name().to_string_lossy().len() == 16)
+            .filter_map(|e| {
+                let dir = e.path();
+                let used = std::fs::metadata(dir.join("meta.json")).and_then(|m| m.modified()).ok()?;
+                let have = File::open(dir.join("have")).ok()?;
+                Some((used, dir, have_count(&have) * PAGE_BYTES))
+            })
+            .collect();
+        let mut total: u64 = caches.iter().map(|c| c.2).sum();
+        caches.sort();
+        for (_, dir, bytes) in caches {
+            if total <= limit {
+                break;
+            }
+            if dir.file_name().is_some_and(|n| n.to_string_lossy() == keep) {
+                continue;
+            }
+            if std::fs::remove_dir_all(&dir).is_ok() {
+                total -= bytes;
+            }
+        }
+    }
+
+    fn resize(&mut self, len: u64) -> Result<()> {
+        if self._temp.is_some() {
+            self.data.set_len(len).at(&self.dir.join("data"))?;
+            self.have.set_len(len.div_ceil(PAGE_BYTES)).at(&self.dir.join("have"))?;
+        }
+        self.pages.store(len.div_ceil(PAGE_BYTES), Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// The cache's directory.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Whether page `p` is present (read from the map each time, so pages another process
+    /// fetched count).
+    pub fn has(&self, p: u64) -> Result<bool> {
+        if p >= self.pages.load(Ordering::Relaxed) {
+            return Ok(false);
+        }
+        let mut b = [0u8; 1];
+        self.have.read_exact_at(&mut b, p).at(&self.dir.join("have"))?;
+        Ok(b[0] == 1)
+    }
+
+    /// Bytes `start..end` (present pages).
+    fn get(&self, start: u64, end: u64) -> Result<Vec<u8>> {
+        let mut v = vec![0u8; (end - start) as usize];
+        self.data.read_exact_at(&mut v, start).at(&self.dir.join("data"))?;
+        Ok(v)
+    }
+
+    /// Stores whole pages from `start` (page-aligned): written and synced before they are marked
+    /// present. Past the bound nothing more is stored.
+    fn put(&self, start: u64, bytes: &[u8]) -> Result<()> {
+        debug_assert_eq!(start % PAGE_BYTES, 0);
+        if bytes.is_empty() || self.written.load(Ordering::Relaxed) + bytes.len() as u64 > self.limit {
+            return Ok(());
+        }
+        let data = self.dir.join("data");
+        self.data.write_all_at(bytes, start).at(&data)?;
+        self.data.sync_data().at(&data)?;
+        let pages = (bytes.len() as u64).div_ceil(PAGE_BYTES);
+        self.have.write_all_at(&vec![1u8; pages as usize], start / PAGE_BYTES).at(&self.dir.join("have"))?;
+        self.written.fetch_add(pages * PAGE_BYTES, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// Pages present.
+    pub fn present_pages(&self) -> u64 {
+        have_count(&self.have)
+    }
+}
+
+fn have_count(have: &File) -> u64 {
+    let mut buf = vec![0u8; 1 << 16];
+    let (mut at, mut n) = (0u64, 0u64);
+    while let Ok(k) = have.read_at(&mut buf, at) {
+        if k == 0 {
+            break;
+        }
+        n += buf[..k].iter().filter(|&&b| b == 1).count() as u64;
+        at += k as u64;
+    }
+    n
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn coalescing_merges_close_runs_up_to_the_cap() {
+        let mut runs = vec![(10, 12), (0, 2), (3, 5), (40, 41)];
+        assert_eq!(coalesce(&mut runs, 1, 100), vec![(0, 5), (10, 12), (40, 41)]);
+        let mut runs = vec![(0, 2), (3, 5), (6, 9)];
+        assert_eq!(coalesce(&mut runs, 1, 6), vec![(0, 5), (6, 9)]);
+        assert!(coalesce(&mut [], 1, 6).is_empty());
+    }
+
+    #[test]
+    fn s3_locations_go_through_their_endpoint() {
+        assert_eq!(http_url("http://h/x").unwrap(), "http://h/x");
+        assert!(http_url("s3://bucket").unwrap_err().to_string().contains("s3://BUCKET/KEY"));
+        assert!(http_url("ftp://x").is_err());
+        assert!(is_remote(Path::new("https://a/b")) && !is_remote(Path::new("/tmp/http:/x")));
+    }
+}

@@ -1,0 +1,164 @@
+//! Remote terrains: a terrain file served on loopback by the project's own range server
+//! (`pager::serve`), read with range requests through the local cache; every fault the server can
+//! inject ends in a retry that succeeds or a one-line error, and nothing half-written is cached.
+
+use std::path::Path;
+use std::sync::atomic::Ordering;
+use std::time::Duration;
+
+use glam::DVec3;
+use relief_core::camera::Camera;
+use relief_core::format::terrain::TerrainFile;
+use relief_core::layout::LayoutKind;
+use relief_core::pager::remote::{RemoteFile, RemoteOptions};
+use relief_core::pager::serve::{ServeOptions, Server};
+use relief_core::pager::source::Source;
+use relief_core::pager::Access;
+use relief_core::preprocess::convert::{convert, ConvertOptions};
+use relief_core::refine::{RefineOptions, Refiner, Strip};
+
+use super::common;
+
+fn zurich(dir: &Path) -> std::path::PathBuf {
+    let out = dir.join("zurich.relief");
+    convert(&common::dem("zurich_25m_i16.tif"), &out, &ConvertOptions::new(LayoutKind::Interleaved)).unwrap();
+    out
+}
+
+fn serve(file: &Path, latency_ms: u64) -> Server {
+    let options = ServeOptions { latency: Duration::from_millis(latency_ms), ..Default::default() };
+    Server::start(vec![("zurich.relief".into(), file.to_path_buf())], "127.0.0.1:0".parse().unwrap(), options).unwrap()
+}
+
+fn options(cache: &Path) -> RemoteOptions {
+    RemoteOptions { cache_dir: Some(cache.to_path_buf()), backoff: Duration::from_millis(2), ..Default::default() }
+}
+
+fn strip_of(t: &TerrainFile) -> Strip {
+    let cam =
+        Camera::new(DVec3::new(6400.0, 640.0, 1126.0), DVec3::new(6400.0, 7680.0, 393.0), DVec3::Z, 60.0, 800, 450)
+            .unwrap();
+    let mut strip = Strip::new();
+    Refiner::new(1)
+        .unwrap()
+        .refine_file(t, &cam, &RefineOptions { tolerance_px: 2.0, ..Default::default() }, &mut strip)
+        .unwrap();
+    strip
+}
+
+#[test]
+fn a_served_terrain_refines_to_the_local_strip_and_is_cached_for_the_next_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let server = serve(&local, 0);
+    let url = server.url("zurich.relief");
+    let cache = dir.path().join("cache");
+    let remote = TerrainFile::open_remote(&url, options(&cache), Access::Map).unwrap();
+    let opened = remote.remote().unwrap().stats();
+    assert_eq!(opened.requests, 1, "opening costs one request");
+    let (h, l) = (remote.header(), TerrainFile::open(&local).unwrap().header().clone());
+    assert_eq!((h.records, h.payload_checksum, h.n), (l.records, l.payload_checksum, l.n));
+    let want = strip_of(&TerrainFile::open(&local).unwrap());
+    assert_eq!(strip_of(&remote).vertices, want.vertices);
+    let fetched = remote.remote().unwrap().stats();
+    assert!(fetched.requests > 1 && fetched.bytes > opened.bytes);
+    drop(remote);
+    // A second open (another process would see the same) reads the pages from the cache.
+    let again = TerrainFile::open_remote(&url, options(&cache), Access::Read).unwrap();
+    assert_eq!(strip_of(&again).vertices, want.vertices);
+    let s = again.remote().unwrap().stats();
+    assert_eq!(s.requests, 1, "only the open goes to the network: {s:?}");
+    assert!(s.cache_hit_pages > 0);
+}
+
+#[test]
+fn dropped_connections_5xx_and_short_answers_are_retried() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let bytes = std::fs::read(&local).unwrap();
+    let server = serve(&local, 0);
+    let url = server.url("zurich.relief");
+    let f = RemoteFile::open(&url, RemoteOptions { first_range: 4096, ..options(&dir.path().join("c")) }).unwrap();
+    for (k, fault) in
+        [&server.faults().drop_next, &server.faults().error_next, &server.faults().short_next].into_iter().enumerate()
+    {
+        fault.store(2, Ordering::SeqCst);
+        let at = 1_000_000 + k as u64 * 100_000;
+        let mut buf = vec![0u8; 50_000];
+        f.read_at(at, &mut buf).unwrap();
+        assert_eq!(&buf[..], &bytes[at as usize..at as usize + 50_000], "fault {k}");
+        assert_eq!(fault.load(Ordering::SeqCst), 0);
+    }
+    assert!(f.stats().retries >= 6, "{:?}", f.stats());
+}
+
+#[test]
+fn faults_that_do_not_heal_are_one_line_errors_and_leave_nothing_cached() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let server = serve(&local, 0);
+    let url = server.url("zurich.relief");
+    let cache = dir.path().join("c");
+    let f = RemoteFile::open(&url, RemoteOptions { first_range: 4096, attempts: 3, ..options(&cache) }).unwrap();
+    let mut buf = vec![0u8; 8192];
+
+    server.faults().error_next.store(10, Ordering::SeqCst);
+    let e = f.read_at(200_000, &mut buf).unwrap_err().to_string();
+    assert_eq!(e, format!("{url}: server answered 503 (gave up after 3 attempts)"));
+    server.faults().error_next.store(0, Ordering::SeqCst);
+
+    server.faults().short_next.store(10, Ordering::SeqCst);
+    let e = f.read_at(300_000, &mut buf).unwrap_err().to_string();
+    assert!(e.starts_with(&format!("{url}: short answer")) && !e.contains('\n'), "{e}");
+    server.faults().short_next.store(0, Ordering::SeqCst);
+    assert!(!f.cache().has(200_000 / 4096).unwrap() && !f.cache().has(300_000 / 4096).unwrap());
+
+    server.faults().ignore_range.store(true, Ordering::SeqCst);
+    let e = f.read_at(400_000, &mut buf).unwrap_err().to_string();
+    assert!(e.starts_with(&format!("{url}: the server ignores Range requests")), "{e}");
+    let e = RemoteFile::open(&url, options(&dir.path().join("d"))).err().unwrap().to_string();
+    assert!(e.contains("ignores Range"), "{e}");
+    server.faults().ignore_range.store(false, Ordering::SeqCst);
+
+    // The file replaced on the server mid-flight (a new ETag): an error, never mixed bytes.
+    let tmp = dir.path().join("new.relief");
+    let mut other = std::fs::read(&local).unwrap();
+    other[5000] ^= 1;
+    std::fs::write(&tmp, &other).unwrap();
+    std::fs::rename(&tmp, &local).unwrap();
+    let e = f.read_at(500_000, &mut buf).unwrap_err().to_string();
+    assert!(e.starts_with(&format!("{url}: changed on the server while being read")), "{e}");
+    assert!(!f.cache().has(500_000 / 4096).unwrap());
+
+    let missing = server.url("nothing.relief");
+    let e = RemoteFile::open(&missing, options(&cache)).err().unwrap().to_string();
+    assert_eq!(e, format!("{missing}: not found on the server (404)"));
+}
+
+#[test]
+fn a_cache_of_another_version_is_replaced_and_the_bound_is_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let server = serve(&local, 0);
+    let url = server.url("zurich.relief");
+    let cache = dir.path().join("c");
+    let f = RemoteFile::open(&url, options(&cache)).unwrap();
+    let cached = f.cache().present_pages();
+    assert_eq!(cached, 256, "the first MiB");
+    drop(f);
+    let mut other = std::fs::read(&local).unwrap();
+    other.push(0);
+    std::fs::write(&local, &other).unwrap();
+    let f = RemoteFile::open(&url, options(&cache)).unwrap();
+    assert_eq!(f.len(), other.len() as u64);
+    let mut buf = vec![0u8; 100];
+    f.read_at(f.len() - 100, &mut buf).unwrap();
+    assert_eq!(&buf[..], &other[other.len() - 100..], "pages of the old version are not served");
+    // A bound below what is cached: nothing more is stored, reads still work.
+    drop(f);
+    let small = RemoteOptions { cache_bytes: 64 << 10, ..options(&cache) };
+    let f = RemoteFile::open(&url, small).unwrap();
+    f.read_at(2_000_000, &mut buf).unwrap();
+    assert_eq!(&buf[..], &other[2_000_000..2_000_100]);
+    assert!(!f.cache().has(2_000_000 / 4096).unwrap());
+}
