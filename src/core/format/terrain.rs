@@ -254,7 +254,6 @@ impl TerrainFile {
     ///
     /// A remote location (`http(s)://`, `s3://`) cannot be mapped: map access reads it instead.
     pub fn open_with(path: &Path, access: Access) -> Result<TerrainFile> {
-        let access = if access == Access::Map && crate::pager::remote::is_remote(path) { Access::Read } else { access };
         let source = source::open(path, access.source_kind())?;
         TerrainFile::open_source(path, source, access)
     }
@@ -266,12 +265,13 @@ impl TerrainFile {
         options: crate::pager::remote::RemoteOptions,
         access: Access,
     ) -> Result<TerrainFile> {
-        let access = if access == Access::Map { Access::Read } else { access };
         let source = Arc::new(crate::pager::remote::RemoteFile::open(location, options)?);
         TerrainFile::open_source(Path::new(location), source, access)
     }
 
     fn open_source(path: &Path, source: Arc<dyn source::Source>, access: Access) -> Result<TerrainFile> {
+        // A source that cannot be mapped (a remote file) is read instead.
+        let access = if access == Access::Map && source.mapped().is_none() { Access::Read } else { access };
         let header: Header = read_header(&*source)?;
         let table = FixedBlocks {
             first: header.payload_offset,

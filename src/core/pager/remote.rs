@@ -22,11 +22,11 @@ use std::io::Read;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use serde::Serialize;
 
-use super::source::{Source, SourceKind};
+use super::source::{check_range, Source, SourceKind};
 use crate::error::{Error, IoContext, Result};
 
 /// The cache's granule: pages of this many bytes, fetched and kept whole.
@@ -133,16 +133,20 @@ struct Counters {
 
 /// A remote file of fixed length and ETag, read with range requests through a page cache.
 pub struct RemoteFile {
+    client: Client,
+    path: PathBuf,
+    cache: DiskCache,
+}
+
+/// The requests of one remote file: where it is, how to ask, what it was when opened.
+struct Client {
     location: String,
     url: String,
-    path: PathBuf,
     len: u64,
     etag: Option<String>,
     agent: ureq::Agent,
     options: RemoteOptions,
-    cache: DiskCache,
     counters: Counters,
-    latency: LatencyEstimate,
 }
 
 /// Why one attempt failed: worth retrying or not.
@@ -161,46 +165,42 @@ impl RemoteFile {
             .max_idle_connections_per_host(options.max_in_flight.max(1) * 2)
             .build()
             .into();
-        let mut file = RemoteFile {
+        let mut client = Client {
             location: location.to_string(),
             url,
-            path: PathBuf::from(location),
             len: 0,
             etag: None,
             agent,
-            cache: DiskCache::temporary(location)?,
-            counters: Counters::default(),
-            latency: LatencyEstimate::default(),
             options,
+            counters: Counters::default(),
         };
-        let want = file.options.first_range.max(PAGE_BYTES);
-        let (first, len, etag) = file.with_retries(|f| f.attempt_open(want))?;
-        file.len = len;
-        file.etag = etag;
-        file.cache = match &file.options.cache_dir {
-            Some(dir) => DiskCache::open(dir, location, len, file.etag.as_deref(), file.options.cache_bytes)?,
-            None => DiskCache::temporary(location)?,
+        let want = client.options.first_range.max(PAGE_BYTES);
+        let (first, len, etag) = client.with_retries(|c| c.attempt_open(want))?;
+        client.len = len;
+        client.etag = etag;
+        let cache = match &client.options.cache_dir {
+            Some(dir) => DiskCache::open(dir, location, len, client.etag.as_deref(), client.options.cache_bytes)?,
+            None => DiskCache::temporary(location, len)?,
         };
-        file.cache.resize(len)?;
-        file.cache.put(0, &first)?;
-        Ok(file)
+        cache.put(0, &first)?;
+        Ok(RemoteFile { client, path: PathBuf::from(location), cache })
     }
 
     /// The location as given (`http://…`, `s3://…`).
     pub fn location(&self) -> &str {
-        &self.location
+        &self.client.location
     }
 
     pub fn etag(&self) -> Option<&str> {
-        self.etag.as_deref()
+        self.client.etag.as_deref()
     }
 
     pub fn options(&self) -> &RemoteOptions {
-        &self.options
+        &self.client.options
     }
 
     pub fn stats(&self) -> RemoteStats {
-        let c = &self.counters;
+        let c = &self.client.counters;
         RemoteStats {
             requests: c.requests.load(Ordering::Relaxed),
             bytes: c.bytes.load(Ordering::Relaxed),
@@ -209,16 +209,64 @@ impl RemoteFile {
         }
     }
 
-    /// The median time of a request so far, ms (0 before the first).
-    pub fn median_request_ms(&self) -> f64 {
-        self.latency.median_ms()
-    }
-
     /// The local cache.
     pub fn cache(&self) -> &DiskCache {
         &self.cache
     }
 
+    /// The whole pages `first..end` (page numbers), from the cache where present, else fetched
+    /// (coalesced runs, bounded in flight) and cached. Calls `got(page, bytes)` for every run of
+    /// pages it has, in no particular order; the bytes are whole pages except at the file's end.
+    pub fn fetch_runs(&self, runs: &[(u64, u64)], mut got: impl FnMut(u64, &[u8]) -> Result<()>) -> Result<()> {
+        let mut missing = Vec::new();
+        for &(first, end) in runs {
+            let present = self.cache.present(first, end)?;
+            let mut p = first;
+            while p < end {
+                let here = present[(p - first) as usize];
+                let mut q = p + 1;
+                while q < end && present[(q - first) as usize] == here {
+                    q += 1;
+                }
+                if here {
+                    let bytes = self.cache.get(p * PAGE_BYTES, (q * PAGE_BYTES).min(self.client.len))?;
+                    self.client.counters.cache_hit_pages.fetch_add(q - p, Ordering::Relaxed);
+                    got(p, &bytes)?;
+                } else {
+                    missing.push((p, q));
+                }
+                p = q;
+            }
+        }
+        let options = &self.client.options;
+        let requests = coalesce(&mut missing, options.coalesce_gap / PAGE_BYTES, options.max_request / PAGE_BYTES);
+        let results = std::sync::Mutex::new(Vec::with_capacity(requests.len()));
+        let next = AtomicU64::new(0);
+        let workers = options.max_in_flight.clamp(1, requests.len().max(1));
+        std::thread::scope(|s| {
+            for _ in 0..workers {
+                s.spawn(|| loop {
+                    let k = next.fetch_add(1, Ordering::Relaxed) as usize;
+                    let Some(&(p, q)) = requests.get(k) else { break };
+                    let r = self.client.fetch(p * PAGE_BYTES, (q * PAGE_BYTES).min(self.client.len));
+                    let failed = r.is_err();
+                    results.lock().unwrap_or_else(|e| e.into_inner()).push((p, r));
+                    if failed {
+                        break;
+                    }
+                });
+            }
+        });
+        for (p, r) in results.into_inner().unwrap_or_else(|e| e.into_inner()) {
+            let bytes = r?;
+            self.cache.put(p * PAGE_BYTES, &bytes)?;
+            got(p, &bytes)?;
+        }
+        Ok(())
+    }
+}
+
+impl Client {
     fn with_retries<T>(&self, mut f: impl FnMut(&Self) -> std::result::Result<T, Attempt>) -> Result<T> {
         let mut delay = self.options.backoff;
         let attempts = self.options.attempts.max(1);
@@ -278,7 +326,6 @@ impl RemoteFile {
     }
 
     fn attempt_open(&self, want: u64) -> std::result::Result<(Vec<u8>, u64, Option<String>), Attempt> {
-        let t0 = Instant::now();
         let resp = self.request(&format!("bytes=0-{}", want - 1))?;
         let etag = header(&resp, "etag");
         let status = resp.status().as_u16();
@@ -298,7 +345,6 @@ impl RemoteFile {
             (n, n)
         };
         let body = self.read_body(resp, body_len)?;
-        self.latency.add(t0.elapsed());
         Ok((body, len, etag))
     }
 
@@ -343,12 +389,11 @@ impl RemoteFile {
     }
 
     /// Bytes `start..end` in one request (retried), validated.
-    pub fn fetch(&self, start: u64, end: u64) -> Result<Vec<u8>> {
+    fn fetch(&self, start: u64, end: u64) -> Result<Vec<u8>> {
         if start >= end || end > self.len {
-            return Err(Error::Truncated { path: self.path.clone(), expected: end, found: self.len });
+            return Err(Error::Truncated { path: PathBuf::from(&self.location), expected: end, found: self.len });
         }
         self.with_retries(|f| {
-            let t0 = Instant::now();
             let resp = f.request(&format!("bytes={start}-{}", end - 1))?;
             f.check_etag(&resp)?;
             if resp.status().as_u16() == 200 {
@@ -367,59 +412,8 @@ impl RemoteFile {
                 return Err(Attempt::Fatal(f.bad_range(start, end, a, b)));
             }
             let body = f.read_body(resp, end - start)?;
-            f.latency.add(t0.elapsed());
             Ok(body)
         })
-    }
-
-    /// The whole pages `first..end` (page numbers), from the cache where present, else fetched
-    /// (coalesced runs, bounded in flight) and cached. Calls `got(page, bytes)` for every run of
-    /// pages it has, in no particular order; the bytes are whole pages except at the file's end.
-    pub fn fetch_runs(&self, runs: &[(u64, u64)], mut got: impl FnMut(u64, &[u8]) -> Result<()>) -> Result<()> {
-        let mut missing = Vec::new();
-        for &(first, end) in runs {
-            let mut p = first;
-            while p < end {
-                let present = self.cache.has(p)?;
-                let mut q = p + 1;
-                while q < end && self.cache.has(q)? == present {
-                    q += 1;
-                }
-                if present {
-                    let bytes = self.cache.get(p * PAGE_BYTES, (q * PAGE_BYTES).min(self.len))?;
-                    self.counters.cache_hit_pages.fetch_add(q - p, Ordering::Relaxed);
-                    got(p, &bytes)?;
-                } else {
-                    missing.push((p, q));
-                }
-                p = q;
-            }
-        }
-        let requests =
-            coalesce(&mut missing, self.options.coalesce_gap / PAGE_BYTES, self.options.max_request / PAGE_BYTES);
-        let results = std::sync::Mutex::new(Vec::with_capacity(requests.len()));
-        let next = AtomicU64::new(0);
-        let workers = self.options.max_in_flight.clamp(1, requests.len().max(1));
-        std::thread::scope(|s| {
-            for _ in 0..workers {
-                s.spawn(|| loop {
-                    let k = next.fetch_add(1, Ordering::Relaxed) as usize;
-                    let Some(&(p, q)) = requests.get(k) else { break };
-                    let r = self.fetch(p * PAGE_BYTES, (q * PAGE_BYTES).min(self.len));
-                    let failed = r.is_err();
-                    results.lock().unwrap_or_else(|e| e.into_inner()).push((p, r));
-                    if failed {
-                        break;
-                    }
-                });
-            }
-        });
-        for (p, r) in results.into_inner().unwrap_or_else(|e| e.into_inner()) {
-            let bytes = r?;
-            self.cache.put(p * PAGE_BYTES, &bytes)?;
-            got(p, &bytes)?;
-        }
-        Ok(())
     }
 }
 
@@ -455,37 +449,13 @@ fn content_range(resp: &ureq::http::Response<ureq::Body>) -> Option<(u64, u64, u
     (a <= b && b < total).then_some((a, b, total))
 }
 
-/// Median of the request times seen (a small reservoir).
-#[derive(Default)]
-struct LatencyEstimate {
-    samples: std::sync::Mutex<Vec<f64>>,
-}
-
-impl LatencyEstimate {
-    fn add(&self, d: Duration) {
-        let mut s = self.samples.lock().unwrap_or_else(|e| e.into_inner());
-        if s.len() < 4096 {
-            s.push(d.as_secs_f64() * 1e3);
-        }
-    }
-
-    fn median_ms(&self) -> f64 {
-        let mut s = self.samples.lock().unwrap_or_else(|e| e.into_inner()).clone();
-        if s.is_empty() {
-            return 0.0;
-        }
-        s.sort_by(f64::total_cmp);
-        s[s.len() / 2]
-    }
-}
-
 impl Source for RemoteFile {
     fn path(&self) -> &Path {
         &self.path
     }
 
     fn len(&self) -> u64 {
-        self.len
+        self.client.len
     }
 
     fn kind(&self) -> SourceKind {
@@ -493,11 +463,8 @@ impl Source for RemoteFile {
     }
 
     fn read_at(&self, offset: u64, buf: &mut [u8]) -> Result<()> {
-        let end = offset.checked_add(buf.len() as u64).filter(|&e| e <= self.len).ok_or_else(|| Error::Truncated {
-            path: self.path.clone(),
-            expected: offset.saturating_add(buf.len() as u64),
-            found: self.len,
-        })?;
+        check_range(&self.path, self.client.len, offset, buf.len())?;
+        let end = offset + buf.len() as u64;
         if buf.is_empty() {
             return Ok(());
         }
@@ -541,7 +508,7 @@ pub struct DiskCache {
     dir: PathBuf,
     data: File,
     have: File,
-    pages: AtomicU64,
+    pages: u64,
     limit: u64,
     written: AtomicU64,
     _temp: Option<tempfile::TempDir>,
@@ -555,19 +522,21 @@ struct CacheMeta {
 }
 
 impl DiskCache {
-    /// A cache in a temporary directory, removed with it.
-    fn temporary(location: &str) -> Result<DiskCache> {
+    /// A cache of a `len`-byte file in a temporary directory, removed with it.
+    fn temporary(location: &str, len: u64) -> Result<DiskCache> {
         let temp = tempfile::Builder::new()
             .prefix("relief-remote-")
             .tempdir()
             .map_err(|e| Error::remote(location, format!("cannot make a temporary cache: {e}")))?;
         let dir = temp.path().to_path_buf();
         let (data, have) = Self::files(&dir, true)?;
+        data.set_len(len).at(&dir.join("data"))?;
+        have.set_len(len.div_ceil(PAGE_BYTES)).at(&dir.join("have"))?;
         Ok(DiskCache {
             dir,
             data,
             have,
-            pages: AtomicU64::new(0),
+            pages: len.div_ceil(PAGE_BYTES),
             limit: u64::MAX,
             written: AtomicU64::new(0),
             _temp: Some(temp),
@@ -631,7 +600,7 @@ impl DiskCache {
             dir,
             data,
             have,
-            pages: AtomicU64::new(len.div_ceil(PAGE_BYTES)),
+            pages: len.div_ceil(PAGE_BYTES),
             limit,
             written: AtomicU64::new(written),
             _temp: None,
@@ -667,29 +636,23 @@ impl DiskCache {
         }
     }
 
-    fn resize(&mut self, len: u64) -> Result<()> {
-        if self._temp.is_some() {
-            self.data.set_len(len).at(&self.dir.join("data"))?;
-            self.have.set_len(len.div_ceil(PAGE_BYTES)).at(&self.dir.join("have"))?;
-        }
-        self.pages.store(len.div_ceil(PAGE_BYTES), Ordering::Relaxed);
-        Ok(())
-    }
-
     /// The cache's directory.
     pub fn dir(&self) -> &Path {
         &self.dir
     }
 
-    /// Whether page `p` is present (read from the map each time, so pages another process
-    /// fetched count).
+    /// Whether page `p` is present.
     pub fn has(&self, p: u64) -> Result<bool> {
-        if p >= self.pages.load(Ordering::Relaxed) {
-            return Ok(false);
-        }
-        let mut b = [0u8; 1];
-        self.have.read_exact_at(&mut b, p).at(&self.dir.join("have"))?;
-        Ok(b[0] == 1)
+        Ok(self.present(p, p + 1)?[0])
+    }
+
+    /// Which of pages `first..end` are present (read from the map each time, in one read, so
+    /// pages another process fetched count); pages past the file's end are not.
+    pub fn present(&self, first: u64, end: u64) -> Result<Vec<bool>> {
+        let mut map = vec![0u8; end.saturating_sub(first) as usize];
+        let known = self.pages.clamp(first, end.max(first)) - first;
+        self.have.read_exact_at(&mut map[..known as usize], first).at(&self.dir.join("have"))?;
+        Ok(map.iter().map(|&b| b == 1).collect())
     }
 
     /// Bytes `start..end` (present pages).

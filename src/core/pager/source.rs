@@ -79,7 +79,8 @@ fn fadvise(path: &Path, file: &File, advice: libc::c_int) -> Result<()> {
     Ok(())
 }
 
-fn check_range(path: &Path, len: u64, offset: u64, bytes: usize) -> Result<()> {
+/// A read of `bytes` at `offset` must lie within a file of `len` bytes: else an error naming it.
+pub(super) fn check_range(path: &Path, len: u64, offset: u64, bytes: usize) -> Result<()> {
     match offset.checked_add(bytes as u64) {
         Some(end) if end <= len => Ok(()),
         _ => Err(Error::Truncated { path: path.into(), expected: offset.saturating_add(bytes as u64), found: len }),
