@@ -162,3 +162,62 @@ fn a_cache_of_another_version_is_replaced_and_the_bound_is_kept() {
     assert_eq!(&buf[..], &other[2_000_000..2_000_100]);
     assert!(!f.cache().has(2_000_000 / 4096).unwrap());
 }
+
+/// Flies one view of a served terrain frame by frame: no update waits for the network (the first
+/// frame is drawn from the opening request alone), every frame is a conforming mesh, and once
+/// the fetches are in, the strip is the local file's.
+fn progressive_flight(layout: LayoutKind) {
+    use relief_core::flight::frame::{Frame, FrameSource};
+    use relief_core::flight::terrain::TerrainSource;
+    use relief_core::refine::check::check_strip;
+    use std::collections::HashSet;
+    use std::sync::Arc;
+
+    let dir = tempfile::tempdir().unwrap();
+    let local = dir.path().join("zurich.relief");
+    convert(&common::dem("zurich_25m_i16.tif"), &local, &ConvertOptions::new(layout)).unwrap();
+    let server = serve(&local, 20);
+    let url = server.url("zurich.relief");
+    let remote = Arc::new(TerrainFile::open_remote(&url, options(&dir.path().join("cache")), Access::Read).unwrap());
+    let grid = remote.grid();
+    let refine = RefineOptions { tolerance_px: 2.0, ..Default::default() };
+    let mut source = TerrainSource::new(remote.clone(), refine, 1, false).unwrap();
+    let cam =
+        Camera::new(DVec3::new(6400.0, 640.0, 1126.0), DVec3::new(6400.0, 7680.0, 393.0), DVec3::Z, 60.0, 800, 450)
+            .unwrap();
+    let conforming = |s: &TerrainSource| {
+        let Frame::Strip(strip) = s.frame() else { unreachable!() };
+        let inserted: HashSet<(u32, u32)> = strip.vertices.iter().map(|v| (v.x, v.y)).collect();
+        let check = check_strip(grid, strip, |x, y| inserted.contains(&(x, y)));
+        assert!(check.crack_free, "{layout}: {check:?}");
+        strip.vertices.clone()
+    };
+    let first = source.update(&cam, 2.0).unwrap();
+    assert!(first.coarse, "{layout}: the first frame cannot have everything yet: {first:?}");
+    assert_eq!(first.round_trips, 1, "{layout}: the first frame is drawn from the opening request alone");
+    conforming(&source);
+    let mut frames = 1;
+    let mut last = first;
+    while last.coarse && frames < 2000 {
+        std::thread::sleep(Duration::from_millis(5));
+        last = source.update(&cam, 2.0).unwrap();
+        conforming(&source);
+        frames += 1;
+    }
+    assert!(!last.coarse, "{layout}: still coarse after {frames} frames: {last:?}");
+    assert!(frames > 2, "{layout}: frames were drawn while the data arrived");
+    let want = strip_of(&TerrainFile::open(&local).unwrap());
+    assert_eq!(conforming(&source), want.vertices, "{layout}: converged to the local strip");
+    let stats = remote.remote().unwrap().stats();
+    eprintln!(
+        "{layout}: complete after {frames} frames, {} round trips, {} requests, {} bytes",
+        last.round_trips, stats.requests, stats.bytes
+    );
+    assert!(last.round_trips >= 2 && last.round_trips <= 12, "{layout}: {last:?}");
+}
+
+#[test]
+fn a_remote_flight_never_waits_never_cracks_and_converges_to_the_local_strip() {
+    progressive_flight(LayoutKind::Interleaved);
+    progressive_flight(LayoutKind::RowMajor);
+}

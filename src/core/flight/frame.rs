@@ -30,6 +30,27 @@ pub enum Frame<'a> {
     Triangles(&'a [[f32; 3]]),
 }
 
+impl Frame<'_> {
+    /// FNV-1a (64-bit) of what is drawn, in order: the strip's grid posts, or the triangles'
+    /// coordinate bits. Equal digests: the same geometry.
+    pub fn digest(&self) -> u64 {
+        let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |w: u32| {
+            for b in w.to_le_bytes() {
+                h = (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        };
+        match self {
+            Frame::Strip(s) => s.vertices.iter().for_each(|v| {
+                eat(v.x);
+                eat(v.y)
+            }),
+            Frame::Triangles(t) => t.iter().flatten().for_each(|c| eat(c.to_bits())),
+        }
+        h
+    }
+}
+
 /// A backend flown frame by frame.
 pub trait FrameSource {
     /// Adapts to `camera` at `tolerance_px` (screen-space error, pixels) and says what happened.
@@ -40,6 +61,12 @@ pub trait FrameSource {
     fn bounds(&self) -> Bounds;
     /// What the source is, for reports ("terrain, interleaved, map", …).
     fn describe(&self) -> String;
+    /// Updates for `camera` until nothing the view needs is missing (a remote source waiting for
+    /// its fetches), at most `timeout`; the number of updates, or `None` for a source that never
+    /// misses (every update is already complete).
+    fn settle(&mut self, _camera: &Camera, _tolerance_px: f64, _timeout: std::time::Duration) -> Result<Option<u64>> {
+        Ok(None)
+    }
 }
 
 /// What one update did: the same fields for every backend, zero where a backend has nothing to
@@ -76,6 +103,13 @@ pub struct FrameStats {
     pub read_ms: f64,
     /// Camera updates between this frame's camera and the one its geometry was made for.
     pub lag_frames: u64,
+    /// A remote terrain: whether the drawn geometry is coarser than wanted (records or heights
+    /// not here yet), the requests and body bytes this update's fetches cost, and the causal
+    /// round trips of the data drawn (1: the opening request alone).
+    pub coarse: bool,
+    pub requests: u64,
+    pub net_bytes: u64,
+    pub round_trips: u64,
 }
 
 impl FrameStats {
@@ -130,6 +164,9 @@ pub struct FlightOptions {
     pub frames_out: Option<PathBuf>,
     /// Write the report as JSON here.
     pub stats_out: Option<PathBuf>,
+    /// After the last frame, how long a source that missed data (a remote terrain) may take to
+    /// get everything the last view needs ([`FrameSource::settle`]) before the flight fails.
+    pub settle_timeout: std::time::Duration,
     pub progress: Progress,
 }
 
@@ -142,6 +179,7 @@ impl FlightOptions {
             pace_ms: 0.0,
             frames_out: None,
             stats_out: None,
+            settle_timeout: std::time::Duration::from_secs(120),
             progress: Progress::hidden(),
         }
     }
@@ -160,6 +198,8 @@ pub struct FrameRecord {
     pub frame_ms: f64,
     /// Bytes sent to the GPU this frame.
     pub upload_bytes: u64,
+    /// When the frame ended, seconds from the flight's start (pacing waits included).
+    pub end_s: f64,
     /// The process's page faults while the frame's update ran: major (read from storage) and
     /// minor (mapped from memory, readahead included).
     pub major_faults: u64,
@@ -238,6 +278,21 @@ pub struct FlightSummary {
     pub height_fallbacks: Summary,
     /// The render thread's time in the height cache's step, microseconds.
     pub height_step_us: Summary,
+    /// A remote terrain: frames drawn coarser than wanted (data missing), the first frame that
+    /// was not, the causal round trips it waited for and when it ended (seconds from the start);
+    /// requests and body bytes over the flight.
+    pub coarse_frames: u64,
+    pub first_complete_frame: Option<usize>,
+    pub first_complete_round_trips: Option<u64>,
+    pub first_complete_s: Option<f64>,
+    pub requests: u64,
+    pub net_bytes: u64,
+    /// Updates of the last camera after the flight until nothing was missing (`null`: the
+    /// source never misses), and the final frame: triangles and [`Frame::digest`] (hex), equal
+    /// for the same geometry from a local or a remote file.
+    pub settle_updates: Option<u64>,
+    pub final_triangles: u64,
+    pub final_digest: String,
 }
 
 /// A flight: `{"frames": […], "summary": {…}}`.
@@ -251,6 +306,8 @@ impl FlightSummary {
     fn of(frames: &[FrameRecord], wall_s: f64, options: &FlightOptions, source: String, adapter: String) -> Self {
         let s = |f: fn(&FrameRecord) -> f64| Summary::of(frames.iter().map(f));
         let total = |f: fn(&FrameRecord) -> u64| frames.iter().map(f).sum::<u64>();
+        // Remote sources only: a local one has no round trips.
+        let first_complete = frames.iter().find(|f| !f.stats.coarse && f.stats.round_trips > 0);
         FlightSummary {
             frames: frames.len(),
             fps: if wall_s > 0.0 { frames.len() as f64 / wall_s } else { 0.0 },
@@ -286,6 +343,15 @@ impl FlightSummary {
             tiles_resident: s(|f| f.gpu_heights.tiles_resident as f64),
             height_fallbacks: s(|f| f.gpu_heights.fallbacks as f64),
             height_step_us: s(|f| f.gpu_heights.step_us as f64),
+            coarse_frames: frames.iter().filter(|f| f.stats.coarse).count() as u64,
+            first_complete_frame: first_complete.map(|f| f.frame),
+            first_complete_round_trips: first_complete.map(|f| f.stats.round_trips),
+            first_complete_s: first_complete.map(|f| f.end_s),
+            requests: total(|f| f.stats.requests),
+            net_bytes: total(|f| f.stats.net_bytes),
+            settle_updates: None,
+            final_triangles: 0,
+            final_digest: String::new(),
         }
     }
 }
@@ -343,6 +409,7 @@ pub fn fly<'p>(
             render_ms,
             frame_ms: t0.elapsed().as_secs_f64() * 1e3,
             upload_bytes,
+            end_s: t_all.elapsed().as_secs_f64(),
             major_faults: faults1.0 - faults0.0,
             minor_faults: faults1.1 - faults0.1,
             gpu_heights,
@@ -350,9 +417,21 @@ pub fn fly<'p>(
         bar.inc(1);
     }
     bar.finish_and_clear();
+    let wall_s = t_all.elapsed().as_secs_f64();
+    let settle_updates = match cameras.last() {
+        Some(last) => source.settle(last, options.tolerance_px, options.settle_timeout)?,
+        None => None,
+    };
     let adapter = presenter.as_ref().map_or_else(|| "none (update only)".to_string(), |p| p.adapter());
-    let mut summary = FlightSummary::of(&frames, t_all.elapsed().as_secs_f64(), options, source.describe(), adapter);
+    let mut summary = FlightSummary::of(&frames, wall_s, options, source.describe(), adapter);
     summary.resident_gpu_bytes = presenter.as_ref().map_or(0, |p| p.resident_bytes());
+    summary.settle_updates = settle_updates;
+    let last = source.frame();
+    summary.final_triangles = match last {
+        Frame::Strip(s) => s.triangle_counts().0,
+        Frame::Triangles(t) => t.len() as u64 / 3,
+    };
+    summary.final_digest = format!("{:016x}", last.digest());
     let report = FlightReport { frames, summary };
     if let Some(out) = &options.stats_out {
         let text = serde_json::to_string_pretty(&report)

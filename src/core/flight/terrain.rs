@@ -15,7 +15,9 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::format::terrain::TerrainFile;
 use crate::mesh::Bounds;
+use crate::pager::remote::RemoteStats;
 use crate::pager::ReadStats;
+use crate::refine::progressive::{Progressive, ProgressiveFrame, ProgressiveOptions};
 use crate::refine::{RefineCounters, RefineOptions, Refiner, Strip};
 use crate::sys::mem;
 
@@ -95,25 +97,59 @@ pub struct Refined {
     pub faults: (u64, u64),
     /// A read that failed during the refinement (the strip stops above the records it missed).
     pub error: Option<crate::Error>,
+    /// A remote terrain's frame: what it missed and the round of its data.
+    pub progress: Option<ProgressiveFrame>,
 }
 
-pub fn refine_once(refiner: &mut Refiner, terrain: &TerrainFile, job: RefineJob, mut strip: Strip) -> Refined {
+/// What refines a terrain: the refiner, and for a remote terrain its records as far as they
+/// have arrived ([`Progressive`]: refinement that never waits for the network).
+pub struct Engine {
+    refiner: Refiner,
+    progressive: Option<Progressive>,
+}
+
+impl Engine {
+    /// On `threads` threads; progressive when `terrain` is remote.
+    pub fn new(terrain: &Arc<TerrainFile>, threads: usize) -> Result<Engine> {
+        let progressive = match terrain.remote() {
+            Some(_) => Some(Progressive::new(terrain.clone(), ProgressiveOptions::default())?),
+            None => None,
+        };
+        Ok(Engine { refiner: Refiner::new(threads)?, progressive })
+    }
+
+    pub fn progressive(&mut self) -> Option<&mut Progressive> {
+        self.progressive.as_mut()
+    }
+}
+
+pub fn refine_once(engine: &mut Engine, terrain: &TerrainFile, job: RefineJob, mut strip: Strip) -> Refined {
     let faults0 = mem::page_faults();
     let t0 = Instant::now();
-    let mut result = refiner.refine_file(terrain, &job.camera, &job.options, &mut strip);
-    if job.options.heights && job.options.morph_ratio.is_none() {
-        result = result.and_then(|c| {
-            crate::heightcache::exact_heights(terrain, &strip.vertices, &mut strip.morph)?;
-            Ok(c)
-        });
-    }
+    let mut progress = None;
+    let result = match &mut engine.progressive {
+        Some(p) => p.refine(&mut engine.refiner, &job.camera, &job.options, &mut strip).map(|f| {
+            progress = Some(f);
+            f.counters
+        }),
+        None => {
+            let mut result = engine.refiner.refine_file(terrain, &job.camera, &job.options, &mut strip);
+            if job.options.heights && job.options.morph_ratio.is_none() {
+                result = result.and_then(|c| {
+                    crate::heightcache::exact_heights(terrain, &strip.vertices, &mut strip.morph)?;
+                    Ok(c)
+                });
+            }
+            result
+        }
+    };
     let (counters, error) = match result {
         Ok(c) => (c, None),
         Err(e) => (RefineCounters::default(), Some(e)),
     };
     let refine_ms = t0.elapsed().as_secs_f64() * 1e3;
     let faults1 = mem::page_faults();
-    Refined { strip, counters, refine_ms, job, faults: (faults1.0 - faults0.0, faults1.1 - faults0.1), error }
+    Refined { strip, counters, refine_ms, job, faults: (faults1.0 - faults0.0, faults1.1 - faults0.1), error, progress }
 }
 
 /// Refinement on its own thread: give it the newest camera with [`Self::request`], collect the
@@ -128,7 +164,7 @@ pub struct RefineThread {
 impl RefineThread {
     /// Starts the thread; refinement itself uses `threads` threads.
     pub fn spawn(terrain: Arc<TerrainFile>, threads: usize) -> Result<RefineThread> {
-        let mut refiner = Refiner::new(threads)?;
+        let mut engine = Engine::new(&terrain, threads)?;
         let jobs = Arc::new(Mailbox::<RefineJob>::new());
         let done = Arc::new(Mailbox::<Refined>::new());
         let spare = Arc::new(Mutex::new(Vec::<Strip>::new()));
@@ -138,7 +174,7 @@ impl RefineThread {
             .spawn(move || {
                 while let Some(job) = j.wait() {
                     let strip = s.lock().unwrap_or_else(|p| p.into_inner()).pop().unwrap_or_default();
-                    let refined = refine_once(&mut refiner, &terrain, job, strip);
+                    let refined = refine_once(&mut engine, &terrain, job, strip);
                     if let Some(stale) = d.put(refined) {
                         s.lock().unwrap_or_else(|p| p.into_inner()).push(stale.strip);
                     }
@@ -186,8 +222,9 @@ impl Drop for RefineThread {
 /// Where strips are refined.
 enum Mode {
     /// On the calling thread, in [`FrameSource::update`].
-    Sync(Refiner),
-    /// On the refinement thread; `update` asks for the newest camera and takes the newest strip.
+    Sync(Engine),
+    /// On the refinement thread; `update` asks for the newest camera and takes the newest strip
+    /// (and asks again for the same camera while the drawn strip is coarser than wanted).
     Thread { thread: RefineThread, last_request: Option<(Camera, RefineOptions)>, taken: bool },
 }
 
@@ -202,6 +239,10 @@ pub struct TerrainSource {
     strip_seq: u64,
     seq: u64,
     reads: ReadStats,
+    /// A remote terrain's costs at the last update, and whether the drawn strip missed data.
+    remote: RemoteStats,
+    coarse: bool,
+    round_trips: u64,
 }
 
 impl TerrainSource {
@@ -216,10 +257,22 @@ impl TerrainSource {
         let mode = if refine_thread {
             Mode::Thread { thread: RefineThread::spawn(terrain.clone(), threads)?, last_request: None, taken: false }
         } else {
-            Mode::Sync(Refiner::new(threads)?)
+            Mode::Sync(Engine::new(&terrain, threads)?)
         };
         let reads = terrain.pager().reads();
-        Ok(TerrainSource { terrain, options, mode, strip: Strip::new(), strip_seq: 0, seq: 0, reads })
+        let remote = terrain.remote().map(|r| r.stats()).unwrap_or_default();
+        Ok(TerrainSource {
+            terrain,
+            options,
+            mode,
+            strip: Strip::new(),
+            strip_seq: 0,
+            seq: 0,
+            reads,
+            remote,
+            coarse: false,
+            round_trips: 0,
+        })
     }
 
     pub fn terrain(&self) -> &Arc<TerrainFile> {
@@ -252,9 +305,9 @@ impl FrameSource for TerrainSource {
         let options = RefineOptions { tolerance_px, ..self.options };
         let job = RefineJob { camera: *camera, options, seq: self.seq };
         let refined = match &mut self.mode {
-            Mode::Sync(refiner) => Some(refine_once(refiner, &self.terrain, job, std::mem::take(&mut self.strip))),
+            Mode::Sync(engine) => Some(refine_once(engine, &self.terrain, job, std::mem::take(&mut self.strip))),
             Mode::Thread { thread, last_request, taken } => {
-                if *last_request != Some((job.camera, job.options)) {
+                if *last_request != Some((job.camera, job.options)) || self.coarse {
                     thread.request(job);
                     *last_request = Some((job.camera, job.options));
                 }
@@ -272,6 +325,9 @@ impl FrameSource for TerrainSource {
         let reads = self.terrain.pager().reads();
         let (pages_read, bytes_read) = (reads.pages - self.reads.pages, reads.bytes - self.reads.bytes);
         self.reads = reads;
+        let remote = self.terrain.remote().map(|r| r.stats()).unwrap_or_default();
+        let (requests, net_bytes) = (remote.requests - self.remote.requests, remote.bytes - self.remote.bytes);
+        self.remote = remote;
         let Some(r) = refined else {
             return Ok(FrameStats {
                 triangles: self.strip.triangle_counts().0,
@@ -279,6 +335,10 @@ impl FrameSource for TerrainSource {
                 pages_read,
                 bytes_read,
                 lag_frames: self.seq.saturating_sub(self.strip_seq),
+                coarse: self.coarse,
+                requests,
+                net_bytes,
+                round_trips: self.round_trips,
                 ..FrameStats::default()
             });
         };
@@ -287,16 +347,56 @@ impl FrameSource for TerrainSource {
         }
         self.strip = r.strip;
         self.strip_seq = r.job.seq;
+        let (coarse, misses) = match &r.progress {
+            Some(p) => (!p.complete(), p.missed_records),
+            None => (false, 0),
+        };
+        self.coarse = coarse;
+        self.round_trips = r.progress.map_or(0, |p| p.round_trips);
         Ok(FrameStats {
             update_ms: Some(r.refine_ms),
             changed: true,
             triangles: self.strip.triangle_counts().0,
             strip_len: self.strip.len() as u64,
+            misses,
             pages_read,
             bytes_read,
             lag_frames: self.seq.saturating_sub(r.job.seq),
+            coarse,
+            requests,
+            net_bytes,
+            round_trips: self.round_trips,
             ..FrameStats::default()
         })
+    }
+
+    fn settle(&mut self, camera: &Camera, tolerance_px: f64, timeout: std::time::Duration) -> Result<Option<u64>> {
+        if self.terrain.remote().is_none() {
+            return Ok(None);
+        }
+        let deadline = Instant::now() + timeout;
+        let mut updates = 0;
+        loop {
+            let stats = self.update(camera, tolerance_px)?;
+            updates += 1;
+            if stats.changed && !stats.coarse {
+                return Ok(Some(updates));
+            }
+            if Instant::now() >= deadline {
+                return Err(Error::remote(
+                    &self.terrain.path().display().to_string(),
+                    format!("the view did not get all its records within {} s", timeout.as_secs_f64()),
+                ));
+            }
+            match &mut self.mode {
+                Mode::Sync(engine) => {
+                    if let Some(p) = engine.progressive() {
+                        p.wait_arrival(std::time::Duration::from_millis(100))?;
+                    }
+                }
+                Mode::Thread { .. } => std::thread::sleep(std::time::Duration::from_millis(5)),
+            }
+        }
     }
 
     fn frame(&self) -> Frame<'_> {

@@ -656,7 +656,7 @@ impl DiskCache {
     }
 
     /// Bytes `start..end` (present pages).
-    fn get(&self, start: u64, end: u64) -> Result<Vec<u8>> {
+    pub fn get(&self, start: u64, end: u64) -> Result<Vec<u8>> {
         let mut v = vec![0u8; (end - start) as usize];
         self.data.read_exact_at(&mut v, start).at(&self.dir.join("data"))?;
         Ok(v)

@@ -20,6 +20,7 @@
 pub mod check;
 pub mod metric;
 pub mod minimal;
+pub mod progressive;
 pub mod records;
 pub mod report;
 mod walk;

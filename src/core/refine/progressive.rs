@@ -1,0 +1,532 @@
+//! Refinement over a remote terrain that never waits for the network, and never draws a crack
+//! (ARCHITECTURE.md, "Remote terrains").
+//!
+//! Every frame refines with the records that are *effective*: fetched, and with every DAG parent
+//! effective. Any other record reads as never active, so the mesh stays coarser where data is
+//! missing. Effectiveness is closed upwards in the DAG, so a vertex the refinement makes active
+//! has both its parents active: the nesting that conformity rests on (Lindstrom & Pascucci,
+//! *Visualization of Large Terrains Made Easy*, §3) holds for the reduced error field as it does
+//! for the file's, and every frame's strip is conforming. The effective set changes only between
+//! frames ([`Progressive::refine`] absorbs what arrived before it refines), so a frame never mixes
+//! two states; once everything a view needs has arrived, the strip is the local file's.
+//!
+//! A record that misses marks its block wanted (one atomic bit; the first miss of a block in a
+//! frame is kept as the block's representative). After the frame the representatives go to a
+//! fetcher thread, which asks for their blocks and, as look-ahead, for the blocks of their DAG
+//! descendants a few levels down (what the next frames would miss next once the block arrives:
+//! a child's error and radius are bounded by the parent's, so an active parent's subtree is where
+//! refinement goes), coalesced into range requests by [`RemoteFile::fetch_runs`]. A record that is
+//! fetched but not effective sends its missing ancestors instead.
+//!
+//! Each arrival carries its causal round: one more than the round of the data of the frame that
+//! asked for it (the opening request is round 1). A frame's round is the newest it has absorbed,
+//! so the round of the first complete frame is the number of sequential round trips it waited for.
+
+use std::collections::{BTreeMap, HashSet};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::format::terrain::{Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
+use crate::layout::hierarchy::VertexKind;
+use crate::layout::{AnyLayout, Layout};
+use crate::pager::remote::{RemoteStats, PAGE_BYTES};
+use crate::refine::records::RecordSource;
+use crate::refine::{Morph, RefineCounters, RefineOptions, Refiner, Strip};
+
+const BLOCK_BYTES: u64 = RECORDS_PER_BLOCK * RECORD_BYTES as u64;
+const WORDS_PER_BLOCK: usize = (RECORDS_PER_BLOCK as usize).div_ceil(64);
+
+/// How far ahead the fetcher asks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ProgressiveOptions {
+    /// Levels of DAG descendants below a missed record whose blocks are fetched with it.
+    pub lookahead_levels: u32,
+}
+
+impl Default for ProgressiveOptions {
+    fn default() -> Self {
+        ProgressiveOptions { lookahead_levels: 6 }
+    }
+}
+
+/// A fetched block of records and which of them are effective (one bit each).
+struct Block {
+    records: Box<[Record]>,
+    effective: [u64; WORDS_PER_BLOCK],
+}
+
+/// The record no refinement makes active (NaN error and radius fail the active test).
+const MISSING: Record = Record { z: 0.0, error: f32::NAN, radius: f32::NAN };
+
+/// The records of one frame: effective ones as fetched, the rest [`MISSING`], each miss noted.
+struct FrameRecords<'a> {
+    blocks: &'a [Option<Block>],
+    /// Per block: a miss was noted (a fetch asked for, or its ancestors' sought) and not yet
+    /// answered.
+    wanted: &'a [AtomicU64],
+    representatives: &'a Mutex<Vec<u64>>,
+    missed: AtomicU64,
+}
+
+impl RecordSource for FrameRecords<'_> {
+    #[inline]
+    fn record(&self, index: u64) -> Record {
+        let b = (index / RECORDS_PER_BLOCK) as usize;
+        let k = (index % RECORDS_PER_BLOCK) as usize;
+        if let Some(Some(block)) = self.blocks.get(b) {
+            if block.effective[k / 64] >> (k % 64) & 1 == 1 {
+                if let Some(r) = block.records.get(k) {
+                    return *r;
+                }
+            }
+        }
+        self.missed.fetch_add(1, Ordering::Relaxed);
+        if let Some(w) = self.wanted.get(b / 64) {
+            let bit = 1u64 << (b % 64);
+            if w.fetch_or(bit, Ordering::Relaxed) & bit == 0 {
+                self.representatives.lock().unwrap_or_else(|p| p.into_inner()).push(index);
+            }
+        }
+        MISSING
+    }
+}
+
+/// What one progressive frame used and missed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ProgressiveFrame {
+    pub counters: RefineCounters,
+    /// Record reads that found no effective record (the strip is coarser there).
+    pub missed_records: u64,
+    /// The causal round of the newest data the frame used (1: the opening request alone).
+    pub round_trips: u64,
+    /// Strip vertices whose height was not fetched yet (drawn at the terrain's mid height).
+    pub missing_heights: u64,
+    /// What the remote file has cost so far (cumulative).
+    pub remote: RemoteStats,
+}
+
+impl ProgressiveFrame {
+    /// Whether the frame is the local file's (nothing missed).
+    pub fn complete(&self) -> bool {
+        self.missed_records == 0 && self.missing_heights == 0
+    }
+}
+
+/// Work for the fetcher: representatives of missed blocks, and the round they were missed in.
+struct Plan {
+    round: u64,
+    misses: Vec<u64>,
+}
+
+enum Arrival {
+    Blocks { round: u64, blocks: Vec<(u64, Vec<u8>)> },
+    Failed(Error),
+}
+
+/// A remote terrain's records as far as they have arrived, refined without waiting.
+pub struct Progressive {
+    terrain: Arc<TerrainFile>,
+    blocks: Vec<Option<Block>>,
+    wanted: Vec<AtomicU64>,
+    representatives: Mutex<Vec<u64>>,
+    round: u64,
+    plans: Option<Sender<Plan>>,
+    arrivals: Receiver<Arrival>,
+    fetcher: Option<JoinHandle<()>>,
+    /// Plans sent and not yet answered.
+    outstanding: u64,
+}
+
+impl Progressive {
+    /// Starts on `terrain` (remote) with the blocks its cache already holds (the opening range,
+    /// and what earlier runs fetched), and a fetcher thread.
+    pub fn new(terrain: Arc<TerrainFile>, options: ProgressiveOptions) -> Result<Progressive> {
+        let Some(remote) = terrain.remote() else {
+            return Err(Error::InvalidArgument(format!(
+                "{}: progressive refinement needs a remote terrain",
+                terrain.path().display()
+            )));
+        };
+        let h = terrain.header();
+        let n_blocks = h.payload_bytes.div_ceil(BLOCK_BYTES);
+        let mut p = Progressive {
+            blocks: (0..n_blocks).map(|_| None).collect(),
+            wanted: (0..n_blocks.div_ceil(64)).map(|_| AtomicU64::new(0)).collect(),
+            representatives: Mutex::new(Vec::new()),
+            round: 1,
+            plans: None,
+            arrivals: channel().1,
+            fetcher: None,
+            outstanding: 0,
+            terrain: terrain.clone(),
+        };
+        // Blocks wholly in the cache are resident from the start.
+        let first_page = h.payload_offset / PAGE_BYTES;
+        let end_page = (h.payload_offset + h.payload_bytes).div_ceil(PAGE_BYTES);
+        let present = remote.cache().present(first_page, end_page)?;
+        let mut have = Vec::new();
+        for b in 0..n_blocks {
+            let (start, end) = p.block_range(b);
+            let pages = (start / PAGE_BYTES - first_page) as usize..(end.div_ceil(PAGE_BYTES) - first_page) as usize;
+            if present[pages].iter().all(|&x| x) {
+                have.push((b, remote.cache().get(start, end)?));
+            }
+        }
+        let asked: Vec<bool> = {
+            let mut a = vec![false; n_blocks as usize];
+            for (b, _) in &have {
+                a[*b as usize] = true;
+            }
+            a
+        };
+        p.insert(have);
+        let (plan_tx, plan_rx) = channel::<Plan>();
+        let (arrive_tx, arrive_rx) = channel::<Arrival>();
+        let t = terrain.clone();
+        let handle = std::thread::Builder::new()
+            .name("relief-fetch".into())
+            .spawn(move || fetcher(t, options, asked, plan_rx, arrive_tx))
+            .map_err(|e| Error::InvalidArgument(format!("cannot start the fetch thread: {e}")))?;
+        p.plans = Some(plan_tx);
+        p.arrivals = arrive_rx;
+        p.fetcher = Some(handle);
+        // The corners are strip vertices of every frame (their heights are drawn).
+        let grid = h.grid();
+        let corners: Vec<u64> = grid.corners().iter().map(|&(x, y)| terrain.layout().index(x, y)).collect();
+        let missing: Vec<u64> = corners.into_iter().filter(|&i| !p.present(i)).collect();
+        if !missing.is_empty() {
+            p.send(Plan { round: 2, misses: missing });
+        }
+        Ok(p)
+    }
+
+    pub fn terrain(&self) -> &Arc<TerrainFile> {
+        &self.terrain
+    }
+
+    /// Bytes `[start, end)` of block `b` in the file.
+    fn block_range(&self, b: u64) -> (u64, u64) {
+        let h = self.terrain.header();
+        let start = h.payload_offset + b * BLOCK_BYTES;
+        (start, (start + BLOCK_BYTES).min(h.payload_offset + h.payload_bytes))
+    }
+
+    fn present(&self, index: u64) -> bool {
+        matches!(self.blocks.get((index / RECORDS_PER_BLOCK) as usize), Some(Some(_)))
+    }
+
+    fn is_effective(&self, index: u64) -> bool {
+        let k = (index % RECORDS_PER_BLOCK) as usize;
+        match self.blocks.get((index / RECORDS_PER_BLOCK) as usize) {
+            Some(Some(b)) => b.effective[k / 64] >> (k % 64) & 1 == 1,
+            _ => false,
+        }
+    }
+
+    fn send(&mut self, plan: Plan) {
+        if let Some(tx) = &self.plans {
+            if tx.send(plan).is_ok() {
+                self.outstanding += 1;
+            }
+        }
+    }
+
+    /// Makes fetched blocks resident and settles which records are effective: a record becomes
+    /// effective once it is here and its DAG parents are, and then its children are looked at
+    /// again (each record is settled once, so the work is proportional to what arrived).
+    fn insert(&mut self, arrived: Vec<(u64, Vec<u8>)>) {
+        let layout = self.terrain.layout().clone();
+        let grid = self.terrain.grid();
+        let mut work: Vec<(u32, u32)> = Vec::new();
+        for (b, bytes) in arrived {
+            let Some(slot) = self.blocks.get_mut(b as usize) else { continue };
+            if slot.is_some() {
+                continue;
+            }
+            let records: Box<[Record]> =
+                bytes.chunks_exact(RECORD_BYTES as usize).map(bytemuck::pod_read_unaligned::<Record>).collect();
+            let n = records.len() as u64;
+            *slot = Some(Block { records, effective: [0; WORDS_PER_BLOCK] });
+            if let Some(w) = self.wanted.get(b as usize / 64) {
+                w.fetch_and(!(1u64 << (b % 64)), Ordering::Relaxed);
+            }
+            for k in 0..n {
+                if let Some(xy) = layout.coords(b * RECORDS_PER_BLOCK + k) {
+                    work.push(xy);
+                }
+            }
+        }
+        while let Some((x, y)) = work.pop() {
+            let i = layout.index(x, y);
+            if self.is_effective(i) || !self.present(i) {
+                continue;
+            }
+            let (parents, count) = grid.dag_parents(x, y);
+            if !parents[..count].iter().all(|&(px, py)| self.is_effective(layout.index(px, py))) {
+                continue;
+            }
+            let k = (i % RECORDS_PER_BLOCK) as usize;
+            if let Some(Some(block)) = self.blocks.get_mut((i / RECORDS_PER_BLOCK) as usize) {
+                block.effective[k / 64] |= 1 << (k % 64);
+            }
+            let (children, count) = grid.dag_children(x, y);
+            work.extend_from_slice(&children[..count]);
+            if count == 0 && matches!(grid.kind(x, y), VertexKind::Corner) {
+                // The corners are the centre's DAG parents, though not in `dag_children`.
+                work.push(grid.centre());
+            }
+        }
+    }
+
+    /// Takes what has arrived (never waits); a failed fetch is the error.
+    pub fn absorb(&mut self) -> Result<bool> {
+        let mut any = false;
+        while let Ok(a) = self.arrivals.try_recv() {
+            any = true;
+            self.arrived(a)?;
+        }
+        Ok(any)
+    }
+
+    fn arrived(&mut self, a: Arrival) -> Result<()> {
+        self.outstanding = self.outstanding.saturating_sub(1);
+        match a {
+            Arrival::Blocks { round, blocks } => {
+                // An answer that brought nothing (all asked already) is no round trip.
+                if !blocks.is_empty() {
+                    self.round = self.round.max(round);
+                }
+                self.insert(blocks);
+                Ok(())
+            }
+            Arrival::Failed(e) => Err(e),
+        }
+    }
+
+    /// Waits up to `timeout` for an arrival and takes it; `false` when none came (or nothing is
+    /// outstanding).
+    pub fn wait_arrival(&mut self, timeout: Duration) -> Result<bool> {
+        if self.outstanding == 0 {
+            return Ok(false);
+        }
+        match self.arrivals.recv_timeout(timeout) {
+            Ok(a) => {
+                self.arrived(a)?;
+                self.absorb()?;
+                Ok(true)
+            }
+            Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => Ok(false),
+        }
+    }
+
+    /// Whether fetches are outstanding.
+    pub fn fetching(&self) -> bool {
+        self.outstanding > 0
+    }
+
+    /// Refines `camera`'s view with what is here (after absorbing what arrived), asks for what
+    /// was missed, and fills the strip's heights (`options.heights`) from the fetched records.
+    pub fn refine(
+        &mut self,
+        refiner: &mut Refiner,
+        camera: &Camera,
+        options: &RefineOptions,
+        strip: &mut Strip,
+    ) -> Result<ProgressiveFrame> {
+        self.absorb()?;
+        let terrain = self.terrain.clone();
+        let records = FrameRecords {
+            blocks: &self.blocks,
+            wanted: &self.wanted,
+            representatives: &self.representatives,
+            missed: AtomicU64::new(0),
+        };
+        let counters = refiner.refine_source(&terrain, &records, camera, options, strip);
+        let missed_records = records.missed.into_inner();
+        let mut missing_heights = 0;
+        if options.heights && options.morph_ratio.is_none() {
+            let h = terrain.header();
+            let mid = (0.5 * (h.z_min + h.z_max)) as f32;
+            let layout = terrain.layout();
+            strip.morph.clear();
+            for v in &strip.vertices {
+                let i = layout.index(v.x, v.y);
+                let k = (i % RECORDS_PER_BLOCK) as usize;
+                let z_m = match self.blocks.get((i / RECORDS_PER_BLOCK) as usize) {
+                    Some(Some(b)) => b.records.get(k).map_or(mid, |r| r.z),
+                    _ => {
+                        missing_heights += 1;
+                        mid
+                    }
+                };
+                strip.morph.push(Morph { blend: 1.0, z_m });
+            }
+        }
+        let misses = std::mem::take(&mut *self.representatives.lock().unwrap_or_else(|p| p.into_inner()));
+        // A block that is here stays noted only for this frame: its records wait for ancestors,
+        // which the next frame may find missing by another of its records.
+        for &i in &misses {
+            let b = i / RECORDS_PER_BLOCK;
+            if self.present(i) {
+                if let Some(w) = self.wanted.get(b as usize / 64) {
+                    w.fetch_and(!(1u64 << (b % 64)), Ordering::Relaxed);
+                }
+            }
+        }
+        if !misses.is_empty() {
+            let round = self.round + 1;
+            self.send(Plan { round, misses });
+        }
+        let remote = terrain.remote().map(|r| r.stats()).unwrap_or_default();
+        Ok(ProgressiveFrame { counters, missed_records, round_trips: self.round, missing_heights, remote })
+    }
+}
+
+impl Drop for Progressive {
+    fn drop(&mut self) {
+        // Closing the plan channel ends the fetcher after its current fetch.
+        self.plans = None;
+        if let Some(h) = self.fetcher.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+/// The fetcher thread: turns plans into blocks (the missed ones, their look-ahead, or the
+/// missing ancestors of records that are here but not effective), fetches them, hands them over.
+fn fetcher(
+    terrain: Arc<TerrainFile>,
+    options: ProgressiveOptions,
+    mut asked: Vec<bool>,
+    plans: Receiver<Plan>,
+    arrivals: Sender<Arrival>,
+) {
+    let Some(remote) = terrain.remote() else { return };
+    let layout = terrain.layout().clone();
+    let h = terrain.header().clone();
+    let payload_end = h.payload_offset + h.payload_bytes;
+    while let Ok(first) = plans.recv() {
+        // Plans queued behind a fetch are served together: one round of requests.
+        let mut plan_count = 1u64;
+        let mut round = first.round;
+        let mut misses = first.misses;
+        while let Ok(more) = plans.try_recv() {
+            plan_count += 1;
+            round = round.max(more.round);
+            misses.extend(more.misses);
+        }
+        let wanted = plan_blocks(&layout, &asked, &misses, options.lookahead_levels);
+        for &b in &wanted {
+            asked[b as usize] = true;
+        }
+        let mut staged: BTreeMap<u64, Vec<u8>> = BTreeMap::new();
+        let mut runs: Vec<(u64, u64)> = Vec::new();
+        for &b in &wanted {
+            let start = h.payload_offset + b * BLOCK_BYTES;
+            let end = (start + BLOCK_BYTES).min(payload_end);
+            staged.insert(b, vec![0; (end - start) as usize]);
+            let (p, q) = (start / PAGE_BYTES, end.div_ceil(PAGE_BYTES));
+            match runs.last_mut() {
+                Some(last) if last.1 >= p => last.1 = last.1.max(q),
+                _ => runs.push((p, q)),
+            }
+        }
+        let result = remote.fetch_runs(&runs, |page, bytes| {
+            let (lo, hi) = (page * PAGE_BYTES, page * PAGE_BYTES + bytes.len() as u64);
+            let first_block = lo.saturating_sub(h.payload_offset) / BLOCK_BYTES;
+            for (&b, buf) in staged.range_mut(first_block..) {
+                let start = h.payload_offset + b * BLOCK_BYTES;
+                if start >= hi {
+                    break;
+                }
+                let end = start + buf.len() as u64;
+                let (s, e) = (start.max(lo), end.min(hi));
+                if s < e {
+                    buf[(s - start) as usize..(e - start) as usize]
+                        .copy_from_slice(&bytes[(s - lo) as usize..(e - lo) as usize]);
+                }
+            }
+            Ok(())
+        });
+        let arrival = match result {
+            Ok(()) => Arrival::Blocks { round, blocks: staged.into_iter().collect() },
+            Err(e) => Arrival::Failed(e),
+        };
+        let failed = matches!(arrival, Arrival::Failed(_));
+        if arrivals.send(arrival).is_err() {
+            return;
+        }
+        // Every merged plan is answered (the first carried the blocks).
+        for _ in 1..plan_count {
+            if arrivals.send(Arrival::Blocks { round, blocks: Vec::new() }).is_err() {
+                return;
+            }
+        }
+        if failed {
+            return;
+        }
+    }
+}
+
+/// The blocks to fetch for `misses`, in ascending order, leaving out those `asked` already: each
+/// miss's own block, or, when that is here (the record is not effective), the blocks of its
+/// missing ancestors; and the blocks of its DAG descendants down `lookahead` levels.
+fn plan_blocks(layout: &AnyLayout, asked: &[bool], misses: &[u64], lookahead: u32) -> Vec<u64> {
+    let grid = layout.grid();
+    let mut out: HashSet<u64> = HashSet::new();
+    let want = |i: u64, out: &mut HashSet<u64>| {
+        let b = i / RECORDS_PER_BLOCK;
+        if !asked.get(b as usize).copied().unwrap_or(true) {
+            out.insert(b);
+        }
+    };
+    let mut seen: HashSet<(u32, u32)> = HashSet::new();
+    let mut level: Vec<(u32, u32)> = Vec::new();
+    let mut next: Vec<(u32, u32)> = Vec::new();
+    for &i in misses {
+        let Some((x, y)) = layout.coords(i) else { continue };
+        if asked.get((i / RECORDS_PER_BLOCK) as usize).copied().unwrap_or(false) {
+            // Here but not effective: an ancestor is missing.
+            let mut up = vec![(x, y)];
+            let mut visited: HashSet<(u32, u32)> = HashSet::new();
+            while let Some((ux, uy)) = up.pop() {
+                let (parents, count) = grid.dag_parents(ux, uy);
+                for &(px, py) in &parents[..count] {
+                    if visited.insert((px, py)) {
+                        want(layout.index(px, py), &mut out);
+                        up.push((px, py));
+                    }
+                }
+            }
+            continue;
+        }
+        want(i, &mut out);
+        seen.clear();
+        level.clear();
+        level.push((x, y));
+        for _ in 0..lookahead {
+            next.clear();
+            for &(vx, vy) in &level {
+                let (children, count) = grid.dag_children(vx, vy);
+                for &c in &children[..count] {
+                    if seen.insert(c) {
+                        want(layout.index(c.0, c.1), &mut out);
+                        next.push(c);
+                    }
+                }
+            }
+            std::mem::swap(&mut level, &mut next);
+            if level.is_empty() {
+                break;
+            }
+        }
+    }
+    let mut v: Vec<u64> = out.into_iter().collect();
+    v.sort_unstable();
+    v
+}
