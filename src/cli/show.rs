@@ -79,6 +79,24 @@ pub fn print_summary(file: &Path, report: &FlightReport) {
             s.pages_requested.mean, s.pages_candidate.mean, s.seek_pages.mean, s.update_ms.mean, s.read_ms.mean
         );
     }
+    if s.requests > 0 || s.settle_updates.is_some() {
+        let first = match (s.first_complete_frame, s.first_complete_round_trips, s.first_complete_s) {
+            (Some(f), Some(r), Some(t)) => format!("frame {f} after {r} round trips ({t:.2} s)"),
+            _ => "none during the flight".into(),
+        };
+        println!(
+            "  network: {} requests, {} received; {} of {} frames coarser than wanted (data missing); first complete {first}; final strip {} triangles, digest {} (after {} more updates)",
+            s.requests,
+            fmt_bytes(s.net_bytes),
+            s.coarse_frames,
+            s.frames,
+            s.final_triangles,
+            s.final_digest,
+            s.settle_updates.unwrap_or(0)
+        );
+    } else {
+        println!("  final strip {} triangles, digest {}", s.final_triangles, s.final_digest);
+    }
 }
 
 /// Shows a mesh source as `fly` asks: headless along `flight` when given, else in a window.

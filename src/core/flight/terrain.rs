@@ -112,7 +112,7 @@ impl Engine {
     /// On `threads` threads; progressive when `terrain` is remote.
     pub fn new(terrain: &Arc<TerrainFile>, threads: usize) -> Result<Engine> {
         let progressive = match terrain.remote() {
-            Some(_) => Some(Progressive::new(terrain.clone(), ProgressiveOptions::default())?),
+            Some(_) => Some(Progressive::new(terrain.clone(), ProgressiveOptions::from_env()?)?),
             None => None,
         };
         Ok(Engine { refiner: Refiner::new(threads)?, progressive })

@@ -83,12 +83,44 @@ pub struct RemoteOptions {
     pub cache_bytes: u64,
 }
 
+impl RemoteOptions {
+    /// The defaults, with what the environment sets: `RELIEF_REMOTE_IN_FLIGHT` (requests at
+    /// once), `RELIEF_REMOTE_COALESCE_KIB` (gap merged into one request, KiB) and
+    /// `RELIEF_REMOTE_MAX_REQUEST_KIB` (largest request, KiB); the cache as
+    /// [`default_cache_dir`] says.
+    pub fn from_env() -> Result<RemoteOptions> {
+        let mut o = RemoteOptions::default();
+        if let Some(v) = env_number("RELIEF_REMOTE_IN_FLIGHT")? {
+            o.max_in_flight = v.max(1) as usize;
+        }
+        if let Some(v) = env_number("RELIEF_REMOTE_COALESCE_KIB")? {
+            o.coalesce_gap = v << 10;
+        }
+        if let Some(v) = env_number("RELIEF_REMOTE_MAX_REQUEST_KIB")? {
+            o.max_request = (v << 10).max(PAGE_BYTES);
+        }
+        Ok(o)
+    }
+}
+
+/// A whole number from environment variable `name`, if it is set.
+pub fn env_number(name: &str) -> Result<Option<u64>> {
+    match std::env::var(name) {
+        Err(_) => Ok(None),
+        Ok(v) => v
+            .trim()
+            .parse::<u64>()
+            .map(Some)
+            .map_err(|_| Error::InvalidArgument(format!("environment variable {name}={v:?} is not a whole number"))),
+    }
+}
+
 impl Default for RemoteOptions {
     fn default() -> Self {
         RemoteOptions {
             first_range: 1 << 20,
-            max_in_flight: 8,
-            coalesce_gap: 64 << 10,
+            max_in_flight: 16,
+            coalesce_gap: 1 << 20,
             max_request: 4 << 20,
             attempts: 6,
             backoff: Duration::from_millis(20),

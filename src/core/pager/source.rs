@@ -62,7 +62,10 @@ pub trait Source: Send + Sync {
 pub fn open(path: &Path, kind: SourceKind) -> Result<std::sync::Arc<dyn Source>> {
     if super::remote::is_remote(path) {
         let location = path.to_string_lossy();
-        return Ok(std::sync::Arc::new(super::remote::RemoteFile::open(&location, Default::default())?));
+        return Ok(std::sync::Arc::new(super::remote::RemoteFile::open(
+            &location,
+            super::remote::RemoteOptions::from_env()?,
+        )?));
     }
     Ok(match kind {
         SourceKind::Map => std::sync::Arc::new(MappedFile::open(path)?),

@@ -32,7 +32,7 @@ use std::time::Duration;
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::format::terrain::{Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
-use crate::layout::hierarchy::VertexKind;
+use crate::layout::hierarchy::{Grid, VertexKind};
 use crate::layout::{AnyLayout, Layout};
 use crate::pager::remote::{RemoteStats, PAGE_BYTES};
 use crate::refine::records::RecordSource;
@@ -46,6 +46,17 @@ const WORDS_PER_BLOCK: usize = (RECORDS_PER_BLOCK as usize).div_ceil(64);
 pub struct ProgressiveOptions {
     /// Levels of DAG descendants below a missed record whose blocks are fetched with it.
     pub lookahead_levels: u32,
+}
+
+impl ProgressiveOptions {
+    /// The defaults, with `RELIEF_LOOKAHEAD_LEVELS` from the environment where set.
+    pub fn from_env() -> Result<ProgressiveOptions> {
+        let mut o = ProgressiveOptions::default();
+        if let Some(v) = crate::pager::remote::env_number("RELIEF_LOOKAHEAD_LEVELS")? {
+            o.lookahead_levels = v.min(16) as u32;
+        }
+        Ok(o)
+    }
 }
 
 impl Default for ProgressiveOptions {
@@ -65,7 +76,7 @@ const MISSING: Record = Record { z: 0.0, error: f32::NAN, radius: f32::NAN };
 
 /// The records of one frame: effective ones as fetched, the rest [`MISSING`], each miss noted.
 struct FrameRecords<'a> {
-    blocks: &'a [Option<Block>],
+    blocks: &'a [Option<Box<Block>>],
     /// Per block: a miss was noted (a fetch asked for, or its ancestors' sought) and not yet
     /// answered.
     wanted: &'a [AtomicU64],
@@ -124,14 +135,89 @@ struct Plan {
 }
 
 enum Arrival {
-    Blocks { round: u64, blocks: Vec<(u64, Vec<u8>)> },
+    /// Fetched blocks, and the records that became effective with them (per block, bits to
+    /// set), settled on the fetcher thread so that absorbing costs the refining thread a copy.
+    Blocks {
+        round: u64,
+        blocks: Vec<(u64, Vec<u8>)>,
+        effective: Vec<(u64, [u64; WORDS_PER_BLOCK])>,
+    },
     Failed(Error),
+}
+
+/// Which records are effective, kept by the fetcher (who knows every block it handed over, in
+/// order): a record becomes effective once its block is here and its DAG parents are effective,
+/// and then its children are looked at again (each record is settled once, so the work is
+/// proportional to what arrived).
+struct Settle {
+    layout: AnyLayout,
+    grid: Grid,
+    here: Vec<bool>,
+    effective: Vec<Option<Box<[u64; WORDS_PER_BLOCK]>>>,
+}
+
+impl Settle {
+    fn new(layout: AnyLayout, blocks: usize) -> Settle {
+        Settle {
+            grid: layout.grid(),
+            layout,
+            here: vec![false; blocks],
+            effective: (0..blocks).map(|_| None).collect(),
+        }
+    }
+
+    fn is_effective(&self, i: u64) -> bool {
+        let k = (i % RECORDS_PER_BLOCK) as usize;
+        match self.effective.get((i / RECORDS_PER_BLOCK) as usize) {
+            Some(Some(w)) => w[k / 64] >> (k % 64) & 1 == 1,
+            _ => false,
+        }
+    }
+
+    /// Adds blocks `new` (their records `count` each); returns the bits that became set.
+    fn add(&mut self, new: &[(u64, u64)]) -> Vec<(u64, [u64; WORDS_PER_BLOCK])> {
+        let mut work: Vec<(u32, u32)> = Vec::new();
+        for &(b, count) in new {
+            match self.here.get_mut(b as usize) {
+                Some(h) if !*h => *h = true,
+                _ => continue,
+            }
+            for k in 0..count {
+                if let Some(xy) = self.layout.coords(b * RECORDS_PER_BLOCK + k) {
+                    work.push(xy);
+                }
+            }
+        }
+        let mut changed: BTreeMap<u64, [u64; WORDS_PER_BLOCK]> = BTreeMap::new();
+        while let Some((x, y)) = work.pop() {
+            let i = self.layout.index(x, y);
+            let b = i / RECORDS_PER_BLOCK;
+            if self.is_effective(i) || !self.here.get(b as usize).copied().unwrap_or(false) {
+                continue;
+            }
+            let (parents, count) = self.grid.dag_parents(x, y);
+            if !parents[..count].iter().all(|&(px, py)| self.is_effective(self.layout.index(px, py))) {
+                continue;
+            }
+            let k = (i % RECORDS_PER_BLOCK) as usize;
+            let (word, bit) = (k / 64, 1u64 << (k % 64));
+            self.effective[b as usize].get_or_insert_with(|| Box::new([0; WORDS_PER_BLOCK]))[word] |= bit;
+            changed.entry(b).or_insert([0; WORDS_PER_BLOCK])[word] |= bit;
+            let (children, count) = self.grid.dag_children(x, y);
+            work.extend_from_slice(&children[..count]);
+            if count == 0 && matches!(self.grid.kind(x, y), VertexKind::Corner) {
+                // The corners are the centre's DAG parents, though not in `dag_children`.
+                work.push(self.grid.centre());
+            }
+        }
+        changed.into_iter().collect()
+    }
 }
 
 /// A remote terrain's records as far as they have arrived, refined without waiting.
 pub struct Progressive {
     terrain: Arc<TerrainFile>,
-    blocks: Vec<Option<Block>>,
+    blocks: Vec<Option<Box<Block>>>,
     wanted: Vec<AtomicU64>,
     representatives: Mutex<Vec<u64>>,
     round: u64,
@@ -184,13 +270,17 @@ impl Progressive {
             }
             a
         };
-        p.insert(have);
+        let mut settle = Settle::new(terrain.layout().clone(), n_blocks as usize);
+        let counts: Vec<(u64, u64)> =
+            have.iter().map(|(b, bytes)| (*b, bytes.len() as u64 / RECORD_BYTES as u64)).collect();
+        let effective = settle.add(&counts);
+        p.insert(have, effective);
         let (plan_tx, plan_rx) = channel::<Plan>();
         let (arrive_tx, arrive_rx) = channel::<Arrival>();
         let t = terrain.clone();
         let handle = std::thread::Builder::new()
             .name("relief-fetch".into())
-            .spawn(move || fetcher(t, options, asked, plan_rx, arrive_tx))
+            .spawn(move || fetcher(t, options, asked, settle, plan_rx, arrive_tx))
             .map_err(|e| Error::InvalidArgument(format!("cannot start the fetch thread: {e}")))?;
         p.plans = Some(plan_tx);
         p.arrivals = arrive_rx;
@@ -220,14 +310,6 @@ impl Progressive {
         matches!(self.blocks.get((index / RECORDS_PER_BLOCK) as usize), Some(Some(_)))
     }
 
-    fn is_effective(&self, index: u64) -> bool {
-        let k = (index % RECORDS_PER_BLOCK) as usize;
-        match self.blocks.get((index / RECORDS_PER_BLOCK) as usize) {
-            Some(Some(b)) => b.effective[k / 64] >> (k % 64) & 1 == 1,
-            _ => false,
-        }
-    }
-
     fn send(&mut self, plan: Plan) {
         if let Some(tx) = &self.plans {
             if tx.send(plan).is_ok() {
@@ -236,13 +318,8 @@ impl Progressive {
         }
     }
 
-    /// Makes fetched blocks resident and settles which records are effective: a record becomes
-    /// effective once it is here and its DAG parents are, and then its children are looked at
-    /// again (each record is settled once, so the work is proportional to what arrived).
-    fn insert(&mut self, arrived: Vec<(u64, Vec<u8>)>) {
-        let layout = self.terrain.layout().clone();
-        let grid = self.terrain.grid();
-        let mut work: Vec<(u32, u32)> = Vec::new();
+    /// Makes fetched blocks resident and sets the bits of the records that became effective.
+    fn insert(&mut self, arrived: Vec<(u64, Vec<u8>)>, effective: Vec<(u64, [u64; WORDS_PER_BLOCK])>) {
         for (b, bytes) in arrived {
             let Some(slot) = self.blocks.get_mut(b as usize) else { continue };
             if slot.is_some() {
@@ -250,35 +327,16 @@ impl Progressive {
             }
             let records: Box<[Record]> =
                 bytes.chunks_exact(RECORD_BYTES as usize).map(bytemuck::pod_read_unaligned::<Record>).collect();
-            let n = records.len() as u64;
-            *slot = Some(Block { records, effective: [0; WORDS_PER_BLOCK] });
+            *slot = Some(Box::new(Block { records, effective: [0; WORDS_PER_BLOCK] }));
             if let Some(w) = self.wanted.get(b as usize / 64) {
                 w.fetch_and(!(1u64 << (b % 64)), Ordering::Relaxed);
             }
-            for k in 0..n {
-                if let Some(xy) = layout.coords(b * RECORDS_PER_BLOCK + k) {
-                    work.push(xy);
-                }
-            }
         }
-        while let Some((x, y)) = work.pop() {
-            let i = layout.index(x, y);
-            if self.is_effective(i) || !self.present(i) {
-                continue;
-            }
-            let (parents, count) = grid.dag_parents(x, y);
-            if !parents[..count].iter().all(|&(px, py)| self.is_effective(layout.index(px, py))) {
-                continue;
-            }
-            let k = (i % RECORDS_PER_BLOCK) as usize;
-            if let Some(Some(block)) = self.blocks.get_mut((i / RECORDS_PER_BLOCK) as usize) {
-                block.effective[k / 64] |= 1 << (k % 64);
-            }
-            let (children, count) = grid.dag_children(x, y);
-            work.extend_from_slice(&children[..count]);
-            if count == 0 && matches!(grid.kind(x, y), VertexKind::Corner) {
-                // The corners are the centre's DAG parents, though not in `dag_children`.
-                work.push(grid.centre());
+        for (b, words) in effective {
+            if let Some(Some(block)) = self.blocks.get_mut(b as usize) {
+                for (w, new) in block.effective.iter_mut().zip(words) {
+                    *w |= new;
+                }
             }
         }
     }
@@ -296,12 +354,12 @@ impl Progressive {
     fn arrived(&mut self, a: Arrival) -> Result<()> {
         self.outstanding = self.outstanding.saturating_sub(1);
         match a {
-            Arrival::Blocks { round, blocks } => {
+            Arrival::Blocks { round, blocks, effective } => {
                 // An answer that brought nothing (all asked already) is no round trip.
                 if !blocks.is_empty() {
                     self.round = self.round.max(round);
                 }
-                self.insert(blocks);
+                self.insert(blocks, effective);
                 Ok(())
             }
             Arrival::Failed(e) => Err(e),
@@ -403,6 +461,7 @@ fn fetcher(
     terrain: Arc<TerrainFile>,
     options: ProgressiveOptions,
     mut asked: Vec<bool>,
+    mut settle: Settle,
     plans: Receiver<Plan>,
     arrivals: Sender<Arrival>,
 ) {
@@ -454,7 +513,12 @@ fn fetcher(
             Ok(())
         });
         let arrival = match result {
-            Ok(()) => Arrival::Blocks { round, blocks: staged.into_iter().collect() },
+            Ok(()) => {
+                let counts: Vec<(u64, u64)> =
+                    staged.iter().map(|(b, bytes)| (*b, bytes.len() as u64 / RECORD_BYTES as u64)).collect();
+                let effective = settle.add(&counts);
+                Arrival::Blocks { round, blocks: staged.into_iter().collect(), effective }
+            }
             Err(e) => Arrival::Failed(e),
         };
         let failed = matches!(arrival, Arrival::Failed(_));
@@ -463,7 +527,7 @@ fn fetcher(
         }
         // Every merged plan is answered (the first carried the blocks).
         for _ in 1..plan_count {
-            if arrivals.send(Arrival::Blocks { round, blocks: Vec::new() }).is_err() {
+            if arrivals.send(Arrival::Blocks { round, blocks: Vec::new(), effective: Vec::new() }).is_err() {
                 return;
             }
         }
