@@ -139,7 +139,7 @@ enum Arrival {
     /// set), settled on the fetcher thread so that absorbing costs the refining thread a copy.
     Blocks {
         round: u64,
-        blocks: Vec<(u64, Vec<u8>)>,
+        blocks: Vec<(u64, Box<[Record]>)>,
         effective: Vec<(u64, [u64; WORDS_PER_BLOCK])>,
     },
     Failed(Error),
@@ -260,7 +260,7 @@ impl Progressive {
             let (start, end) = p.block_range(b);
             let pages = (start / PAGE_BYTES - first_page) as usize..(end.div_ceil(PAGE_BYTES) - first_page) as usize;
             if present[pages].iter().all(|&x| x) {
-                have.push((b, remote.cache().get(start, end)?));
+                have.push((b, decode(&remote.cache().get(start, end)?)));
             }
         }
         let asked: Vec<bool> = {
@@ -271,8 +271,7 @@ impl Progressive {
             a
         };
         let mut settle = Settle::new(terrain.layout().clone(), n_blocks as usize);
-        let counts: Vec<(u64, u64)> =
-            have.iter().map(|(b, bytes)| (*b, bytes.len() as u64 / RECORD_BYTES as u64)).collect();
+        let counts: Vec<(u64, u64)> = have.iter().map(|(b, records)| (*b, records.len() as u64)).collect();
         let effective = settle.add(&counts);
         p.insert(have, effective);
         let (plan_tx, plan_rx) = channel::<Plan>();
@@ -319,14 +318,12 @@ impl Progressive {
     }
 
     /// Makes fetched blocks resident and sets the bits of the records that became effective.
-    fn insert(&mut self, arrived: Vec<(u64, Vec<u8>)>, effective: Vec<(u64, [u64; WORDS_PER_BLOCK])>) {
-        for (b, bytes) in arrived {
+    fn insert(&mut self, arrived: Vec<(u64, Box<[Record]>)>, effective: Vec<(u64, [u64; WORDS_PER_BLOCK])>) {
+        for (b, records) in arrived {
             let Some(slot) = self.blocks.get_mut(b as usize) else { continue };
             if slot.is_some() {
                 continue;
             }
-            let records: Box<[Record]> =
-                bytes.chunks_exact(RECORD_BYTES as usize).map(bytemuck::pod_read_unaligned::<Record>).collect();
             *slot = Some(Box::new(Block { records, effective: [0; WORDS_PER_BLOCK] }));
             if let Some(w) = self.wanted.get(b as usize / 64) {
                 w.fetch_and(!(1u64 << (b % 64)), Ordering::Relaxed);
@@ -455,6 +452,11 @@ impl Drop for Progressive {
     }
 }
 
+/// Records from their file bytes (a whole number of records).
+fn decode(bytes: &[u8]) -> Box<[Record]> {
+    bytes.chunks_exact(RECORD_BYTES as usize).map(bytemuck::pod_read_unaligned::<Record>).collect()
+}
+
 /// The fetcher thread: turns plans into blocks (the missed ones, their look-ahead, or the
 /// missing ancestors of records that are here but not effective), fetches them, hands them over.
 fn fetcher(
@@ -483,12 +485,14 @@ fn fetcher(
         for &b in &wanted {
             asked[b as usize] = true;
         }
-        let mut staged: BTreeMap<u64, Vec<u8>> = BTreeMap::new();
+        // Decoded here, so that the refining thread only takes the blocks over.
+        let mut staged: BTreeMap<u64, Box<[Record]>> = BTreeMap::new();
         let mut runs: Vec<(u64, u64)> = Vec::new();
         for &b in &wanted {
             let start = h.payload_offset + b * BLOCK_BYTES;
             let end = (start + BLOCK_BYTES).min(payload_end);
-            staged.insert(b, vec![0; (end - start) as usize]);
+            staged
+                .insert(b, vec![Record::default(); ((end - start) / RECORD_BYTES as u64) as usize].into_boxed_slice());
             let (p, q) = (start / PAGE_BYTES, end.div_ceil(PAGE_BYTES));
             match runs.last_mut() {
                 Some(last) if last.1 >= p => last.1 = last.1.max(q),
@@ -498,7 +502,8 @@ fn fetcher(
         let result = remote.fetch_runs(&runs, |page, bytes| {
             let (lo, hi) = (page * PAGE_BYTES, page * PAGE_BYTES + bytes.len() as u64);
             let first_block = lo.saturating_sub(h.payload_offset) / BLOCK_BYTES;
-            for (&b, buf) in staged.range_mut(first_block..) {
+            for (&b, records) in staged.range_mut(first_block..) {
+                let buf: &mut [u8] = bytemuck::cast_slice_mut(&mut records[..]);
                 let start = h.payload_offset + b * BLOCK_BYTES;
                 if start >= hi {
                     break;
@@ -514,8 +519,7 @@ fn fetcher(
         });
         let arrival = match result {
             Ok(()) => {
-                let counts: Vec<(u64, u64)> =
-                    staged.iter().map(|(b, bytes)| (*b, bytes.len() as u64 / RECORD_BYTES as u64)).collect();
+                let counts: Vec<(u64, u64)> = staged.iter().map(|(b, records)| (*b, records.len() as u64)).collect();
                 let effective = settle.add(&counts);
                 Arrival::Blocks { round, blocks: staged.into_iter().collect(), effective }
             }
