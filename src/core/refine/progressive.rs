@@ -10,13 +10,14 @@
 //! frames ([`Progressive::refine`] absorbs what arrived before it refines), so a frame never mixes
 //! two states; once everything a view needs has arrived, the strip is the local file's.
 //!
-//! A record that misses marks its block wanted (one atomic bit; the first miss of a block in a
-//! frame is kept as the block's representative). After the frame the representatives go to a
-//! fetcher thread, which asks for their blocks and, as look-ahead, for the blocks of their DAG
-//! descendants a few levels down (what the next frames would miss next once the block arrives:
-//! a child's error and radius are bounded by the parent's, so an active parent's subtree is where
-//! refinement goes), coalesced into range requests by [`RemoteFile::fetch_runs`]. A record that is
-//! fetched but not effective sends its missing ancestors instead.
+//! A record that misses marks its block wanted (one atomic bit); the misses of the frame that
+//! first marks a block are kept. After the frame they go to a fetcher thread, which asks for
+//! their blocks and, as look-ahead, for the blocks of their DAG descendants a few levels down and
+//! of those descendants' other parents (what the next frames would miss once the block arrives: a
+//! child's error and radius are bounded by the parent's, so an active parent's subtree is where
+//! refinement goes), coalesced into range requests by [`RemoteFile::fetch_runs`]. A record that
+//! is fetched but not effective sends its missing ancestors instead. A wanted block is not asked
+//! for again until it arrives.
 //!
 //! Each arrival carries its causal round: one more than the round of the data of the frame that
 //! asked for it (the opening request is round 1). A frame's round is the newest it has absorbed,
@@ -80,6 +81,8 @@ struct FrameRecords<'a> {
     /// Per block: a miss was noted (a fetch asked for, or its ancestors' sought) and not yet
     /// answered.
     wanted: &'a [AtomicU64],
+    /// Per block: first noted by this frame (every miss in it is kept, as look-ahead seeds).
+    fresh: &'a [AtomicU64],
     representatives: &'a Mutex<Vec<u64>>,
     missed: AtomicU64,
 }
@@ -97,9 +100,15 @@ impl RecordSource for FrameRecords<'_> {
             }
         }
         self.missed.fetch_add(1, Ordering::Relaxed);
-        if let Some(w) = self.wanted.get(b / 64) {
+        if let (Some(w), Some(f)) = (self.wanted.get(b / 64), self.fresh.get(b / 64)) {
             let bit = 1u64 << (b % 64);
-            if w.fetch_or(bit, Ordering::Relaxed) & bit == 0 {
+            let keep = if w.fetch_or(bit, Ordering::Relaxed) & bit == 0 {
+                f.fetch_or(bit, Ordering::Relaxed);
+                true
+            } else {
+                f.load(Ordering::Relaxed) & bit != 0
+            };
+            if keep {
                 self.representatives.lock().unwrap_or_else(|p| p.into_inner()).push(index);
             }
         }
@@ -219,6 +228,7 @@ pub struct Progressive {
     terrain: Arc<TerrainFile>,
     blocks: Vec<Option<Box<Block>>>,
     wanted: Vec<AtomicU64>,
+    fresh: Vec<AtomicU64>,
     representatives: Mutex<Vec<u64>>,
     round: u64,
     plans: Option<Sender<Plan>>,
@@ -243,6 +253,7 @@ impl Progressive {
         let mut p = Progressive {
             blocks: (0..n_blocks).map(|_| None).collect(),
             wanted: (0..n_blocks.div_ceil(64)).map(|_| AtomicU64::new(0)).collect(),
+            fresh: (0..n_blocks.div_ceil(64)).map(|_| AtomicU64::new(0)).collect(),
             representatives: Mutex::new(Vec::new()),
             round: 1,
             plans: None,
@@ -398,6 +409,7 @@ impl Progressive {
         let records = FrameRecords {
             blocks: &self.blocks,
             wanted: &self.wanted,
+            fresh: &self.fresh,
             representatives: &self.representatives,
             missed: AtomicU64::new(0),
         };
@@ -427,6 +439,9 @@ impl Progressive {
         // which the next frame may find missing by another of its records.
         for &i in &misses {
             let b = i / RECORDS_PER_BLOCK;
+            if let Some(f) = self.fresh.get(b as usize / 64) {
+                f.fetch_and(!(1u64 << (b % 64)), Ordering::Relaxed);
+            }
             if self.present(i) {
                 if let Some(w) = self.wanted.get(b as usize / 64) {
                     w.fetch_and(!(1u64 << (b % 64)), Ordering::Relaxed);
@@ -553,7 +568,9 @@ fn plan_blocks(layout: &AnyLayout, asked: &[bool], misses: &[u64], lookahead: u3
             out.insert(b);
         }
     };
+    // Shared by every miss of the plan: a vertex is descended from once.
     let mut seen: HashSet<(u32, u32)> = HashSet::new();
+    let mut visited: HashSet<(u32, u32)> = HashSet::new();
     let mut level: Vec<(u32, u32)> = Vec::new();
     let mut next: Vec<(u32, u32)> = Vec::new();
     for &i in misses {
@@ -561,7 +578,6 @@ fn plan_blocks(layout: &AnyLayout, asked: &[bool], misses: &[u64], lookahead: u3
         if asked.get((i / RECORDS_PER_BLOCK) as usize).copied().unwrap_or(false) {
             // Here but not effective: an ancestor is missing.
             let mut up = vec![(x, y)];
-            let mut visited: HashSet<(u32, u32)> = HashSet::new();
             while let Some((ux, uy)) = up.pop() {
                 let (parents, count) = grid.dag_parents(ux, uy);
                 for &(px, py) in &parents[..count] {
@@ -574,7 +590,9 @@ fn plan_blocks(layout: &AnyLayout, asked: &[bool], misses: &[u64], lookahead: u3
             continue;
         }
         want(i, &mut out);
-        seen.clear();
+        if !seen.insert((x, y)) {
+            continue;
+        }
         level.clear();
         level.push((x, y));
         for _ in 0..lookahead {
@@ -584,6 +602,12 @@ fn plan_blocks(layout: &AnyLayout, asked: &[bool], misses: &[u64], lookahead: u3
                 for &c in &children[..count] {
                     if seen.insert(c) {
                         want(layout.index(c.0, c.1), &mut out);
+                        // A descendant is effective only with both its parents: the one off
+                        // this descent lies beside it.
+                        let (parents, pc) = grid.dag_parents(c.0, c.1);
+                        for &(px, py) in &parents[..pc] {
+                            want(layout.index(px, py), &mut out);
+                        }
                         next.push(c);
                     }
                 }
