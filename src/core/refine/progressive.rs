@@ -23,7 +23,9 @@
 //! asked for it (the opening request is round 1). A frame's round is the newest it has absorbed,
 //! so the round of the first complete frame is the number of sequential round trips it waited for.
 
-use std::collections::{BTreeMap, HashSet};
+use std::collections::BTreeMap;
+
+use rustc_hash::FxHashSet;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{channel, Receiver, RecvTimeoutError, Sender};
 use std::sync::{Arc, Mutex};
@@ -163,6 +165,8 @@ struct Settle {
     grid: Grid,
     here: Vec<bool>,
     effective: Vec<Option<Box<[u64; WORDS_PER_BLOCK]>>>,
+    /// Blocks whose bits changed in this `add` (reset at its end).
+    touched: Vec<bool>,
 }
 
 impl Settle {
@@ -172,6 +176,7 @@ impl Settle {
             layout,
             here: vec![false; blocks],
             effective: (0..blocks).map(|_| None).collect(),
+            touched: vec![false; blocks],
         }
     }
 
@@ -183,7 +188,8 @@ impl Settle {
         }
     }
 
-    /// Adds blocks `new` (their records `count` each); returns the bits that became set.
+    /// Adds blocks `new` (their records `count` each); returns the bits of every block whose
+    /// bits changed (all of them: setting them again is harmless).
     fn add(&mut self, new: &[(u64, u64)]) -> Vec<(u64, [u64; WORDS_PER_BLOCK])> {
         let mut work: Vec<(u32, u32)> = Vec::new();
         for &(b, count) in new {
@@ -197,7 +203,7 @@ impl Settle {
                 }
             }
         }
-        let mut changed: BTreeMap<u64, [u64; WORDS_PER_BLOCK]> = BTreeMap::new();
+        let mut changed: Vec<u64> = Vec::new();
         while let Some((x, y)) = work.pop() {
             let i = self.layout.index(x, y);
             let b = i / RECORDS_PER_BLOCK;
@@ -211,7 +217,9 @@ impl Settle {
             let k = (i % RECORDS_PER_BLOCK) as usize;
             let (word, bit) = (k / 64, 1u64 << (k % 64));
             self.effective[b as usize].get_or_insert_with(|| Box::new([0; WORDS_PER_BLOCK]))[word] |= bit;
-            changed.entry(b).or_insert([0; WORDS_PER_BLOCK])[word] |= bit;
+            if !std::mem::replace(&mut self.touched[b as usize], true) {
+                changed.push(b);
+            }
             let (children, count) = self.grid.dag_children(x, y);
             work.extend_from_slice(&children[..count]);
             if count == 0 && matches!(self.grid.kind(x, y), VertexKind::Corner) {
@@ -219,7 +227,13 @@ impl Settle {
                 work.push(self.grid.centre());
             }
         }
-        changed.into_iter().collect()
+        changed
+            .into_iter()
+            .map(|b| {
+                self.touched[b as usize] = false;
+                (b, self.effective[b as usize].as_deref().copied().unwrap_or([0; WORDS_PER_BLOCK]))
+            })
+            .collect()
     }
 }
 
@@ -496,10 +510,7 @@ fn fetcher(
             round = round.max(more.round);
             misses.extend(more.misses);
         }
-        let wanted = plan_blocks(&layout, &asked, &misses, options.lookahead_levels);
-        for &b in &wanted {
-            asked[b as usize] = true;
-        }
+        let wanted = plan_blocks(&layout, &mut asked, &misses, options.lookahead_levels);
         // Decoded here, so that the refining thread only takes the blocks over.
         let mut staged: BTreeMap<u64, Box<[Record]>> = BTreeMap::new();
         let mut runs: Vec<(u64, u64)> = Vec::new();
@@ -556,41 +567,48 @@ fn fetcher(
     }
 }
 
-/// The blocks to fetch for `misses`, in ascending order, leaving out those `asked` already: each
-/// miss's own block, or, when that is here (the record is not effective), the blocks of its
-/// missing ancestors; and the blocks of its DAG descendants down `lookahead` levels.
-fn plan_blocks(layout: &AnyLayout, asked: &[bool], misses: &[u64], lookahead: u32) -> Vec<u64> {
+/// The blocks to fetch for `misses`, in ascending order, marking them `asked` (leaving out those
+/// asked already): each miss's own block, or, when that is here (the record is not effective),
+/// the blocks of its missing ancestors; and the blocks of its DAG descendants down `lookahead`
+/// levels and of their parents.
+fn plan_blocks(layout: &AnyLayout, asked: &mut [bool], misses: &[u64], lookahead: u32) -> Vec<u64> {
     let grid = layout.grid();
-    let mut out: HashSet<u64> = HashSet::new();
-    let want = |i: u64, out: &mut HashSet<u64>| {
+    let mut out: Vec<u64> = Vec::new();
+    fn want(asked: &mut [bool], i: u64, out: &mut Vec<u64>) {
         let b = i / RECORDS_PER_BLOCK;
-        if !asked.get(b as usize).copied().unwrap_or(true) {
-            out.insert(b);
+        if let Some(a) = asked.get_mut(b as usize) {
+            if !*a {
+                *a = true;
+                out.push(b);
+            }
         }
-    };
-    // Shared by every miss of the plan: a vertex is descended from once.
-    let mut seen: HashSet<(u32, u32)> = HashSet::new();
-    let mut visited: HashSet<(u32, u32)> = HashSet::new();
+    }
+    // Whether each miss's block was asked for before this plan (then the record is here, or on
+    // its way, and not effective: an ancestor is missing).
+    let climb: Vec<bool> =
+        misses.iter().map(|&i| asked.get((i / RECORDS_PER_BLOCK) as usize).copied().unwrap_or(false)).collect();
+    // Shared by every miss of the plan: a vertex is descended from once, climbed from once.
+    let (mut seen, mut climbed): (FxHashSet<u64>, FxHashSet<u64>) = Default::default();
     let mut level: Vec<(u32, u32)> = Vec::new();
     let mut next: Vec<(u32, u32)> = Vec::new();
-    for &i in misses {
+    for (&i, &climb) in misses.iter().zip(&climb) {
         let Some((x, y)) = layout.coords(i) else { continue };
-        if asked.get((i / RECORDS_PER_BLOCK) as usize).copied().unwrap_or(false) {
-            // Here but not effective: an ancestor is missing.
+        if climb {
             let mut up = vec![(x, y)];
             while let Some((ux, uy)) = up.pop() {
                 let (parents, count) = grid.dag_parents(ux, uy);
                 for &(px, py) in &parents[..count] {
-                    if visited.insert((px, py)) {
-                        want(layout.index(px, py), &mut out);
+                    let pi = layout.index(px, py);
+                    if climbed.insert(pi) {
+                        want(asked, pi, &mut out);
                         up.push((px, py));
                     }
                 }
             }
             continue;
         }
-        want(i, &mut out);
-        if !seen.insert((x, y)) {
+        want(asked, i, &mut out);
+        if !seen.insert(i) {
             continue;
         }
         level.clear();
@@ -600,13 +618,14 @@ fn plan_blocks(layout: &AnyLayout, asked: &[bool], misses: &[u64], lookahead: u3
             for &(vx, vy) in &level {
                 let (children, count) = grid.dag_children(vx, vy);
                 for &c in &children[..count] {
-                    if seen.insert(c) {
-                        want(layout.index(c.0, c.1), &mut out);
+                    let ci = layout.index(c.0, c.1);
+                    if seen.insert(ci) {
+                        want(asked, ci, &mut out);
                         // A descendant is effective only with both its parents: the one off
                         // this descent lies beside it.
                         let (parents, pc) = grid.dag_parents(c.0, c.1);
                         for &(px, py) in &parents[..pc] {
-                            want(layout.index(px, py), &mut out);
+                            want(asked, layout.index(px, py), &mut out);
                         }
                         next.push(c);
                     }
@@ -618,7 +637,6 @@ fn plan_blocks(layout: &AnyLayout, asked: &[bool], misses: &[u64], lookahead: u3
             }
         }
     }
-    let mut v: Vec<u64> = out.into_iter().collect();
-    v.sort_unstable();
-    v
+    out.sort_unstable();
+    out
 }
