@@ -36,7 +36,7 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::format::terrain::{Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
 use crate::layout::hierarchy::{Grid, VertexKind};
-use crate::layout::{AnyLayout, Layout};
+use crate::layout::{AnyLayout, Layout, LayoutVisitor};
 use crate::pager::remote::{RemoteStats, PAGE_BYTES};
 use crate::refine::records::RecordSource;
 use crate::refine::{Morph, RefineCounters, RefineOptions, Refiner, Strip};
@@ -191,27 +191,45 @@ impl Settle {
     /// Adds blocks `new` (their records `count` each); returns the bits of every block whose
     /// bits changed (all of them: setting them again is harmless).
     fn add(&mut self, new: &[(u64, u64)]) -> Vec<(u64, [u64; WORDS_PER_BLOCK])> {
-        let mut work: Vec<(u32, u32)> = Vec::new();
+        struct Go<'a> {
+            settle: &'a mut Settle,
+            new: &'a [(u64, u64)],
+        }
+        impl LayoutVisitor for Go<'_> {
+            type Output = Vec<(u64, [u64; WORDS_PER_BLOCK])>;
+            fn visit<L: Layout>(self, layout: &L) -> Self::Output {
+                self.settle.add_in(layout, self.new)
+            }
+        }
+        let layout = self.layout.clone();
+        layout.visit(Go { settle: self, new })
+    }
+
+    /// [`Self::add`] with the layout's type known (settling is index arithmetic on every record
+    /// that arrives).
+    fn add_in<L: Layout>(&mut self, layout: &L, new: &[(u64, u64)]) -> Vec<(u64, [u64; WORDS_PER_BLOCK])> {
+        // Work items carry their record index.
+        let mut work: Vec<(u32, u32, u64)> = Vec::new();
         for &(b, count) in new {
             match self.here.get_mut(b as usize) {
                 Some(h) if !*h => *h = true,
                 _ => continue,
             }
             for k in 0..count {
-                if let Some(xy) = self.layout.coords(b * RECORDS_PER_BLOCK + k) {
-                    work.push(xy);
+                let i = b * RECORDS_PER_BLOCK + k;
+                if let Some((x, y)) = layout.coords(i) {
+                    work.push((x, y, i));
                 }
             }
         }
         let mut changed: Vec<u64> = Vec::new();
-        while let Some((x, y)) = work.pop() {
-            let i = self.layout.index(x, y);
+        while let Some((x, y, i)) = work.pop() {
             let b = i / RECORDS_PER_BLOCK;
             if self.is_effective(i) || !self.here.get(b as usize).copied().unwrap_or(false) {
                 continue;
             }
             let (parents, count) = self.grid.dag_parents(x, y);
-            if !parents[..count].iter().all(|&(px, py)| self.is_effective(self.layout.index(px, py))) {
+            if !parents[..count].iter().all(|&(px, py)| self.is_effective(layout.index(px, py))) {
                 continue;
             }
             let k = (i % RECORDS_PER_BLOCK) as usize;
@@ -221,10 +239,17 @@ impl Settle {
                 changed.push(b);
             }
             let (children, count) = self.grid.dag_children(x, y);
-            work.extend_from_slice(&children[..count]);
+            for &(cx, cy) in &children[..count] {
+                let ci = layout.index(cx, cy);
+                // Only a child that is here can become effective now.
+                if self.here.get((ci / RECORDS_PER_BLOCK) as usize).copied().unwrap_or(false) {
+                    work.push((cx, cy, ci));
+                }
+            }
             if count == 0 && matches!(self.grid.kind(x, y), VertexKind::Corner) {
                 // The corners are the centre's DAG parents, though not in `dag_children`.
-                work.push(self.grid.centre());
+                let (cx, cy) = self.grid.centre();
+                work.push((cx, cy, layout.index(cx, cy)));
             }
         }
         changed
@@ -510,7 +535,20 @@ fn fetcher(
             round = round.max(more.round);
             misses.extend(more.misses);
         }
-        let wanted = plan_blocks(&layout, &mut asked, &misses, options.lookahead_levels);
+        let wanted = {
+            struct Go<'a> {
+                asked: &'a mut [bool],
+                misses: &'a [u64],
+                lookahead: u32,
+            }
+            impl LayoutVisitor for Go<'_> {
+                type Output = Vec<u64>;
+                fn visit<L: Layout>(self, layout: &L) -> Vec<u64> {
+                    plan_blocks(layout, self.asked, self.misses, self.lookahead)
+                }
+            }
+            layout.visit(Go { asked: &mut asked, misses: &misses, lookahead: options.lookahead_levels })
+        };
         // Decoded here, so that the refining thread only takes the blocks over.
         let mut staged: BTreeMap<u64, Box<[Record]>> = BTreeMap::new();
         let mut runs: Vec<(u64, u64)> = Vec::new();
@@ -571,7 +609,7 @@ fn fetcher(
 /// asked already): each miss's own block, or, when that is here (the record is not effective),
 /// the blocks of its missing ancestors; and the blocks of its DAG descendants down `lookahead`
 /// levels and of their parents.
-fn plan_blocks(layout: &AnyLayout, asked: &mut [bool], misses: &[u64], lookahead: u32) -> Vec<u64> {
+fn plan_blocks<L: Layout>(layout: &L, asked: &mut [bool], misses: &[u64], lookahead: u32) -> Vec<u64> {
     let grid = layout.grid();
     let mut out: Vec<u64> = Vec::new();
     fn want(asked: &mut [bool], i: u64, out: &mut Vec<u64>) {
@@ -639,4 +677,69 @@ fn plan_blocks(layout: &AnyLayout, asked: &mut [bool], misses: &[u64], lookahead
     }
     out.sort_unstable();
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::layout::LayoutKind;
+
+    /// Every effective record has effective DAG parents, and every record that is here with
+    /// effective parents is effective: the closure is exact whatever order blocks arrive in.
+    #[test]
+    fn settling_is_the_upward_closed_set_of_what_arrived_in_any_order() {
+        for kind in [LayoutKind::Interleaved, LayoutKind::RowMajor, LayoutKind::Hz] {
+            let grid = Grid::new(7).unwrap();
+            let layout = AnyLayout::new(kind, grid, 0, RECORD_BYTES).unwrap();
+            let blocks = layout.records().div_ceil(RECORDS_PER_BLOCK);
+            let count = |b: u64| (layout.records() - b * RECORDS_PER_BLOCK).min(RECORDS_PER_BLOCK);
+            let mut settle = Settle::new(layout.clone(), blocks as usize);
+            // Finest blocks first (the worst order for a hierarchical layout), one at a time.
+            let mut bits: Vec<[u64; WORDS_PER_BLOCK]> = vec![[0; WORDS_PER_BLOCK]; blocks as usize];
+            for b in (0..blocks).rev() {
+                for (c, words) in settle.add(&[(b, count(b))]) {
+                    for (w, n) in bits[c as usize].iter_mut().zip(words) {
+                        *w |= n;
+                    }
+                }
+                let on = |i: u64| {
+                    let k = (i % RECORDS_PER_BLOCK) as usize;
+                    bits[(i / RECORDS_PER_BLOCK) as usize][k / 64] >> (k % 64) & 1 == 1
+                };
+                for i in 0..layout.records() {
+                    let Some((x, y)) = layout.coords(i) else { continue };
+                    let (parents, n) = grid.dag_parents(x, y);
+                    let parents_on = parents[..n].iter().all(|&(px, py)| on(layout.index(px, py)));
+                    let here = i / RECORDS_PER_BLOCK >= b;
+                    assert_eq!(on(i), here && parents_on, "{kind}: record {i} at ({x}, {y}) after block {b}");
+                }
+            }
+            assert!(
+                (0..layout.records()).all(|i| layout.coords(i).is_none() || settle.is_effective(i)),
+                "{kind}: everything arrived, everything effective"
+            );
+        }
+    }
+
+    /// A plan asks for the missed record's block and its descendants', each block once.
+    #[test]
+    fn a_plan_asks_for_the_miss_and_its_descendants_once() {
+        let grid = Grid::new(9).unwrap();
+        let layout = AnyLayout::new(LayoutKind::Interleaved, grid, 0, RECORD_BYTES).unwrap();
+        let blocks = layout.records().div_ceil(RECORDS_PER_BLOCK) as usize;
+        let mut asked = vec![false; blocks];
+        asked[0] = true;
+        let (cx, cy) = (128, 128);
+        let miss = layout.index(cx, cy);
+        let plan = plan_blocks(&layout, &mut asked, &[miss], 6);
+        assert!(plan.contains(&(miss / RECORDS_PER_BLOCK)) || miss / RECORDS_PER_BLOCK == 0);
+        let (children, n) = grid.dag_children(cx, cy);
+        for &(x, y) in &children[..n] {
+            let b = layout.index(x, y) / RECORDS_PER_BLOCK;
+            assert!(b == 0 || plan.contains(&b), "child ({x}, {y}) in block {b}: {plan:?}");
+        }
+        assert!(plan.windows(2).all(|w| w[0] < w[1]), "ascending, no repeats");
+        assert!(plan.iter().all(|&b| asked[b as usize]));
+        assert!(plan_blocks(&layout, &mut asked, &[miss], 6).is_empty(), "nothing is asked twice");
+    }
 }
