@@ -221,3 +221,32 @@ fn a_remote_flight_never_waits_never_cracks_and_converges_to_the_local_strip() {
     progressive_flight(LayoutKind::Interleaved);
     progressive_flight(LayoutKind::RowMajor);
 }
+
+#[test]
+fn an_s3_location_with_credentials_is_read_with_signed_requests_from_its_endpoint() {
+    use relief_core::pager::remote::S3Config;
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    // A bucket endpoint in path style: the object `terrains/zurich.relief` of bucket `dem`.
+    let server = Server::start(
+        vec![("dem/terrains/zurich.relief".into(), local.clone())],
+        "127.0.0.1:0".parse().unwrap(),
+        ServeOptions::default(),
+    )
+    .unwrap();
+    let endpoint = server.url("").trim_end_matches('/').to_string();
+    let mut o = options(&dir.path().join("cache"));
+    o.s3 = S3Config {
+        endpoint: Some(endpoint),
+        region: "eu-central-2".into(),
+        credentials: Some(("AKIDEXAMPLE".into(), "wJalrXUtnFEMI".into(), None)),
+    };
+    let remote = TerrainFile::open_remote("s3://dem/terrains/zurich.relief", o, Access::Read).unwrap();
+    assert_eq!(strip_of(&remote).vertices, strip_of(&TerrainFile::open(&local).unwrap()).vertices);
+    let stats = remote.remote().unwrap().stats();
+    assert!(stats.requests > 1 && stats.retries == 0, "{stats:?}");
+    let mut o = options(&dir.path().join("c2"));
+    o.s3 = S3Config { endpoint: Some(server.url("").trim_end_matches('/').to_string()), ..Default::default() };
+    let e = TerrainFile::open_remote("s3://dem/terrains/nope.relief", o, Access::Read).err().unwrap().to_string();
+    assert!(e.contains("s3://dem/terrains/nope.relief") && e.contains("404"), "{e}");
+}

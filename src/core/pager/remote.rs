@@ -14,8 +14,11 @@
 //!   closer than [`RemoteOptions::coalesce_gap`] and runs at most
 //!   [`RemoteOptions::max_in_flight`] requests at once.
 //!
-//! `s3://bucket/key` is read through the bucket's HTTPS endpoint (`AWS_ENDPOINT_URL` or the
-//! virtual-hosted AWS one for `AWS_REGION`): public objects only, requests are not signed.
+//! `s3://bucket/key` is read through the bucket's endpoint (`AWS_ENDPOINT_URL_S3` or
+//! `AWS_ENDPOINT_URL` in path style, else the virtual-hosted AWS one for `AWS_REGION`). With
+//! `AWS_ACCESS_KEY_ID` and `AWS_SECRET_ACCESS_KEY` (and `AWS_SESSION_TOKEN`) in the environment
+//! every request is signed (AWS Signature V4 as a presigned URL, by `rusty-s3`, fresh for each
+//! request); without them the object must be public.
 
 use std::fs::File;
 use std::io::Read;
@@ -38,25 +41,19 @@ pub fn is_remote(path: &Path) -> bool {
     s.starts_with("http://") || s.starts_with("https://") || s.starts_with("s3://")
 }
 
-/// The HTTP(S) address of a remote location (`s3://bucket/key` through its endpoint).
-pub fn http_url(location: &str) -> Result<String> {
+/// The unsigned HTTP(S) address of a remote location (`s3://bucket/key` through its endpoint, as
+/// `s3` says).
+pub fn http_url(location: &str, s3: &S3Config) -> Result<String> {
     if location.starts_with("http://") || location.starts_with("https://") {
         return Ok(location.to_string());
     }
-    let Some(rest) = location.strip_prefix("s3://") else {
+    let Some((bucket, key)) = s3_parts(location)? else {
         return Err(Error::remote(location, "not an http://, https:// or s3:// address"));
     };
-    let Some((bucket, key)) = rest.split_once('/').filter(|(b, k)| !b.is_empty() && !k.is_empty()) else {
-        return Err(Error::remote(location, "expected s3://BUCKET/KEY"));
-    };
-    Ok(match std::env::var("AWS_ENDPOINT_URL_S3").or_else(|_| std::env::var("AWS_ENDPOINT_URL")) {
+    Ok(match &s3.endpoint {
         // A custom endpoint (MinIO, Ceph, R2, …) in path style, as their users configure it.
-        Ok(endpoint) => format!("{}/{bucket}/{key}", endpoint.trim_end_matches('/')),
-        Err(_) => {
-            let region = std::env::var("AWS_REGION").or_else(|_| std::env::var("AWS_DEFAULT_REGION"));
-            let region = region.unwrap_or_else(|_| "us-east-1".into());
-            format!("https://{bucket}.s3.{region}.amazonaws.com/{key}")
-        }
+        Some(endpoint) => format!("{}/{bucket}/{key}", endpoint.trim_end_matches('/')),
+        None => format!("https://{bucket}.s3.{}.amazonaws.com/{key}", s3.region),
     })
 }
 
@@ -81,6 +78,96 @@ pub struct RemoteOptions {
     pub cache_dir: Option<PathBuf>,
     /// The cache's size bound, bytes (every cached file together).
     pub cache_bytes: u64,
+    /// How `s3://` locations are reached and signed (from the environment by default).
+    pub s3: S3Config,
+}
+
+/// Where and as whom `s3://` locations are read.
+#[derive(Clone, Default, PartialEq, Eq)]
+pub struct S3Config {
+    /// A custom endpoint (MinIO, Ceph, R2, …), addressed in path style; `None`: AWS itself, in
+    /// virtual-host style for `region`.
+    pub endpoint: Option<String>,
+    pub region: String,
+    /// Access key id, secret and session token; `None`: unsigned requests (public objects).
+    pub credentials: Option<(String, String, Option<String>)>,
+}
+
+impl std::fmt::Debug for S3Config {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // The secret stays out of logs and error messages.
+        f.debug_struct("S3Config")
+            .field("endpoint", &self.endpoint)
+            .field("region", &self.region)
+            .field("access_key_id", &self.credentials.as_ref().map(|c| &c.0))
+            .finish()
+    }
+}
+
+impl S3Config {
+    /// From `AWS_ENDPOINT_URL_S3` / `AWS_ENDPOINT_URL`, `AWS_REGION` / `AWS_DEFAULT_REGION`
+    /// (default `us-east-1`), `AWS_ACCESS_KEY_ID`, `AWS_SECRET_ACCESS_KEY`, `AWS_SESSION_TOKEN`.
+    pub fn from_env() -> Result<S3Config> {
+        let var = |n: &str| std::env::var(n).ok().filter(|v| !v.is_empty());
+        let endpoint = var("AWS_ENDPOINT_URL_S3").or_else(|| var("AWS_ENDPOINT_URL"));
+        let region = var("AWS_REGION").or_else(|| var("AWS_DEFAULT_REGION")).unwrap_or_else(|| "us-east-1".into());
+        let credentials = match (var("AWS_ACCESS_KEY_ID"), var("AWS_SECRET_ACCESS_KEY")) {
+            (Some(k), Some(s)) => Some((k, s, var("AWS_SESSION_TOKEN"))),
+            (None, None) => None,
+            (Some(_), None) => {
+                return Err(Error::InvalidArgument("AWS_ACCESS_KEY_ID is set but AWS_SECRET_ACCESS_KEY is not".into()))
+            }
+            (None, Some(_)) => {
+                return Err(Error::InvalidArgument("AWS_SECRET_ACCESS_KEY is set but AWS_ACCESS_KEY_ID is not".into()))
+            }
+        };
+        Ok(S3Config { endpoint, region, credentials })
+    }
+}
+
+/// Signs the requests of one S3 object.
+struct S3Signer {
+    bucket: rusty_s3::Bucket,
+    key: String,
+    credentials: rusty_s3::Credentials,
+}
+
+impl S3Signer {
+    /// A presigned GET of the object, valid for 15 minutes (made again for every request).
+    fn url(&self) -> String {
+        use rusty_s3::S3Action as _;
+        rusty_s3::actions::GetObject::new(&self.bucket, Some(&self.credentials), &self.key)
+            .sign(Duration::from_secs(900))
+            .to_string()
+    }
+}
+
+/// `s3://BUCKET/KEY` as its bucket and key.
+fn s3_parts(location: &str) -> Result<Option<(&str, &str)>> {
+    let Some(rest) = location.strip_prefix("s3://") else { return Ok(None) };
+    match rest.split_once('/').filter(|(b, k)| !b.is_empty() && !k.is_empty()) {
+        Some(parts) => Ok(Some(parts)),
+        None => Err(Error::remote(location, "expected s3://BUCKET/KEY")),
+    }
+}
+
+/// The signer of `location` (an `s3://` one, with credentials), else `None`.
+fn s3_signer(location: &str, s3: &S3Config) -> Result<Option<S3Signer>> {
+    let (Some((bucket, key)), Some((id, secret, token))) = (s3_parts(location)?, &s3.credentials) else {
+        return Ok(None);
+    };
+    let (endpoint, style) = match &s3.endpoint {
+        Some(e) => (e.clone(), rusty_s3::UrlStyle::Path),
+        None => (format!("https://s3.{}.amazonaws.com", s3.region), rusty_s3::UrlStyle::VirtualHost),
+    };
+    let url = endpoint.parse().map_err(|e| Error::remote(location, format!("bad S3 endpoint {endpoint:?}: {e}")))?;
+    let bucket = rusty_s3::Bucket::new(url, style, bucket.to_string(), s3.region.clone())
+        .map_err(|e| Error::remote(location, format!("bad S3 endpoint {endpoint:?}: {e}")))?;
+    let credentials = match token {
+        Some(t) => rusty_s3::Credentials::new_with_token(id.clone(), secret.clone(), t.clone()),
+        None => rusty_s3::Credentials::new(id.clone(), secret.clone()),
+    };
+    Ok(Some(S3Signer { bucket, key: key.to_string(), credentials }))
 }
 
 impl RemoteOptions {
@@ -99,6 +186,7 @@ impl RemoteOptions {
         if let Some(v) = env_number("RELIEF_REMOTE_MAX_REQUEST_KIB")? {
             o.max_request = (v << 10).max(PAGE_BYTES);
         }
+        o.s3 = S3Config::from_env()?;
         Ok(o)
     }
 }
@@ -127,6 +215,7 @@ impl Default for RemoteOptions {
             timeout: Duration::from_secs(30),
             cache_dir: default_cache_dir(),
             cache_bytes: 8 << 30,
+            s3: S3Config { region: "us-east-1".into(), ..Default::default() },
         }
     }
 }
@@ -174,6 +263,8 @@ pub struct RemoteFile {
 struct Client {
     location: String,
     url: String,
+    /// Signs every request (an `s3://` location with credentials).
+    signer: Option<S3Signer>,
     len: u64,
     etag: Option<String>,
     agent: ureq::Agent,
@@ -190,7 +281,8 @@ enum Attempt {
 impl RemoteFile {
     /// Opens `location` with one request for its first bytes, which are cached.
     pub fn open(location: &str, options: RemoteOptions) -> Result<RemoteFile> {
-        let url = http_url(location)?;
+        let url = http_url(location, &options.s3)?;
+        let signer = s3_signer(location, &options.s3)?;
         let agent: ureq::Agent = ureq::Agent::config_builder()
             .timeout_global(Some(options.timeout))
             .http_status_as_error(false)
@@ -200,6 +292,7 @@ impl RemoteFile {
         let mut client = Client {
             location: location.to_string(),
             url,
+            signer,
             len: 0,
             etag: None,
             agent,
@@ -320,7 +413,11 @@ impl Client {
     }
 
     fn request(&self, range: &str) -> std::result::Result<ureq::http::Response<ureq::Body>, Attempt> {
-        let mut req = self.agent.get(&self.url).header("Range", range);
+        let url = match &self.signer {
+            Some(s) => s.url(),
+            None => self.url.clone(),
+        };
+        let mut req = self.agent.get(&url).header("Range", range);
         if let Some(etag) = &self.etag {
             req = req.header("If-Match", etag);
         }
@@ -744,9 +841,37 @@ mod tests {
 
     #[test]
     fn s3_locations_go_through_their_endpoint() {
-        assert_eq!(http_url("http://h/x").unwrap(), "http://h/x");
-        assert!(http_url("s3://bucket").unwrap_err().to_string().contains("s3://BUCKET/KEY"));
-        assert!(http_url("ftp://x").is_err());
+        let aws = S3Config { region: "eu-west-1".into(), ..Default::default() };
+        let minio = S3Config { endpoint: Some("http://127.0.0.1:9000/".into()), ..aws.clone() };
+        assert_eq!(http_url("http://h/x", &aws).unwrap(), "http://h/x");
+        assert_eq!(http_url("s3://b/dir/t.relief", &aws).unwrap(), "https://b.s3.eu-west-1.amazonaws.com/dir/t.relief");
+        assert_eq!(http_url("s3://b/t.relief", &minio).unwrap(), "http://127.0.0.1:9000/b/t.relief");
+        assert!(http_url("s3://bucket", &aws).unwrap_err().to_string().contains("s3://BUCKET/KEY"));
+        assert!(http_url("ftp://x", &aws).is_err());
         assert!(is_remote(Path::new("https://a/b")) && !is_remote(Path::new("/tmp/http:/x")));
+    }
+
+    #[test]
+    fn s3_requests_are_presigned_only_with_credentials() {
+        let mut s3 =
+            S3Config { endpoint: Some("http://127.0.0.1:9000".into()), region: "eu-west-1".into(), credentials: None };
+        assert!(s3_signer("s3://b/t.relief", &s3).unwrap().is_none(), "no credentials: unsigned");
+        s3.credentials = Some(("AKIDEXAMPLE".into(), "secret".into(), None));
+        assert!(s3_signer("http://h/t.relief", &s3).unwrap().is_none(), "only s3:// is signed");
+        let url = s3_signer("s3://b/t.relief", &s3).unwrap().unwrap().url();
+        assert!(url.starts_with("http://127.0.0.1:9000/b/t.relief?"), "{url}");
+        for part in [
+            "X-Amz-Algorithm=AWS4-HMAC-SHA256",
+            "X-Amz-Credential=AKIDEXAMPLE%2F",
+            "%2Feu-west-1%2Fs3%2Faws4_request",
+            "X-Amz-Expires=900",
+            "X-Amz-Signature=",
+        ] {
+            assert!(url.contains(part), "{part} in {url}");
+        }
+        assert!(!url.contains("secret"), "the secret never travels");
+        s3.credentials = Some(("AKIDEXAMPLE".into(), "secret".into(), Some("TOKEN".into())));
+        assert!(s3_signer("s3://b/t.relief", &s3).unwrap().unwrap().url().contains("X-Amz-Security-Token=TOKEN"));
+        assert!(!format!("{s3:?}").contains("secret"), "Debug leaves the secret out");
     }
 }
