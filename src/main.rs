@@ -121,6 +121,15 @@ fn one_line(e: &anyhow::Error) -> String {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if !matches!(cli.command, Command::Serve(_)) {
+        // Output piped into `head` and the like: end quietly when the reader goes, as other
+        // command-line tools do, instead of panicking in `println!` (Rust ignores SIGPIPE).
+        // Outputs are renamed into place only when complete, so nothing is left half-written.
+        // SAFETY: restoring a signal's default disposition at start-up, before any thread runs.
+        unsafe {
+            libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+        }
+    }
     // Ctrl-C, SIGTERM (timeout, systemd, docker) and SIGHUP (a closed terminal): ask long loops
     // to stop, so temporary files and scratch directories are removed on the way out.
     let _ = ctrlc::set_handler(relief::sys::cancel::request);

@@ -110,7 +110,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         check_output_file("--plot", p)?;
     }
     let flight = FlightPath::load(&a.path)?;
-    if !a.input.exists() {
+    if !a.input.exists() && !relief::pager::remote::is_remote(&a.input) {
         bail!("{}: no such file", a.input.display());
     }
     let cache_dir = a.cache_dir.unwrap_or_else(|| relief::preprocess::convert::cache_dir().join("layouts"));

@@ -168,17 +168,30 @@ fn cached(input: &Path, cache_dir: &Path, what: &str) -> Result<PathBuf> {
     Ok(cache_dir.join(format!("{stem}-{key:016x}.{what}")))
 }
 
-/// The terrain file of `input` in layout `kind`: `input` itself if it is a terrain file in that
-/// layout; otherwise converted (from a DEM) or re-laid out (from a terrain file) once into
-/// `cache_dir`, keyed by the input's name, size and modification time.
+/// The terrain file of `input` in layout `kind`: `input` itself if it is a local terrain file in
+/// that layout; otherwise converted (from a DEM) or re-laid out (from a terrain file, local or
+/// remote: the experiment counts the faults of local files) once into `cache_dir`, keyed by the
+/// input's name, size and modification time (a remote one's location, payload checksum and ETag).
 pub fn terrain_in_layout(input: &Path, kind: LayoutKind, cache_dir: &Path, progress: Progress) -> Result<PathBuf> {
-    let as_terrain = TerrainFile::open(input).ok();
+    let remote = crate::pager::remote::is_remote(input);
+    let as_terrain = if remote { Some(TerrainFile::open(input)?) } else { TerrainFile::open(input).ok() };
     if let Some(t) = &as_terrain {
-        if t.header().layout == kind {
+        if t.header().layout == kind && !remote {
             return Ok(input.to_path_buf());
         }
     }
-    let out = cached(input, cache_dir, &format!("{}.relief", kind.name()))?;
+    let what = format!("{}.relief", kind.name());
+    let out = match (&as_terrain, remote) {
+        (Some(t), true) => {
+            let etag = t.remote().and_then(|r| r.etag()).unwrap_or("");
+            let key = xxhash_rust::xxh3::xxh3_64(
+                format!("{}:{:016x}:{etag}", input.display(), t.header().payload_checksum).as_bytes(),
+            );
+            let stem = input.file_stem().map_or("terrain".into(), |s| s.to_string_lossy().into_owned());
+            cache_dir.join(format!("{stem}-{key:016x}.{what}"))
+        }
+        _ => cached(input, cache_dir, &what)?,
+    };
     if TerrainFile::open(&out).is_ok() {
         return Ok(out);
     }

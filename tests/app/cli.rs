@@ -288,3 +288,21 @@ fn causes_are_said_once() {
     assert_eq!(e.matches("No such file or directory").count(), 1, "{e}");
     let _ = Path::new("");
 }
+
+/// Output piped into a reader that stops early (`| head`): relief ends quietly, without a panic.
+#[test]
+fn a_closed_stdout_pipe_ends_quietly() {
+    use std::io::Read;
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    let t = dir.path().join("t.relief");
+    ok(run(&["convert".as_ref(), dem("zurich_25m_i16.tif").as_os_str(), t.as_os_str()]), "convert");
+    let mut child =
+        relief().args(["info", "--json"]).arg(&t).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    // The reader goes before relief writes (it is still starting).
+    drop(child.stdout.take());
+    let mut err = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+    child.wait().unwrap();
+    assert!(!err.contains("panicked"), "{err}");
+}

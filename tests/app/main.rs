@@ -23,5 +23,6 @@ mod mesh_render;
 mod meta_nodes;
 mod pages;
 mod refine;
+mod remote;
 mod render;
 mod vdt_build;
