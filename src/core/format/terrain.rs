@@ -270,8 +270,6 @@ impl TerrainFile {
     }
 
     fn open_source(path: &Path, source: Arc<dyn source::Source>, access: Access) -> Result<TerrainFile> {
-        // A source that cannot be mapped (a remote file) is read instead.
-        let access = if access == Access::Map && source.mapped().is_none() { Access::Read } else { access };
         let header: Header = read_header(&*source)?;
         let table = FixedBlocks {
             first: header.payload_offset,

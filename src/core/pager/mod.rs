@@ -313,10 +313,12 @@ pub struct Pager {
 }
 
 impl Pager {
-    /// A pager over `source`'s blocks as `table` numbers them. `Map` needs a mapped source; a
+    /// A pager over `source`'s blocks as `table` numbers them. `Map` needs a mapped source, except
+    /// a remote file, which is read instead (every file kind opens remote locations alike); a
     /// pool gets as many place holders as `bytes` allows for the table's largest block.
     pub fn new(source: Arc<dyn Source>, table: Arc<dyn BlockTable>, access: Access) -> Result<Pager> {
         let observer = ObserverSlot::default();
+        let access = if access == Access::Map && source.remote().is_some() { Access::Read } else { access };
         let mode = match access {
             Access::Map => {
                 if source.mapped().is_none() {
