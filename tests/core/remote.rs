@@ -250,3 +250,37 @@ fn an_s3_location_with_credentials_is_read_with_signed_requests_from_its_endpoin
     let e = TerrainFile::open_remote("s3://dem/terrains/nope.relief", o, Access::Read).err().unwrap().to_string();
     assert!(e.contains("s3://dem/terrains/nope.relief") && e.contains("404"), "{e}");
 }
+
+/// A server that goes away mid-flight: the fetches fail after their retries, and the next update
+/// says so in one line naming the location (the frames before it were drawn without waiting).
+#[test]
+fn a_server_gone_mid_flight_ends_the_flight_with_a_one_line_error() {
+    use relief_core::flight::frame::FrameSource;
+    use relief_core::flight::terrain::TerrainSource;
+    use std::sync::Arc;
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let server = serve(&local, 0);
+    let url = server.url("zurich.relief");
+    let mut o = options(&dir.path().join("cache"));
+    o.attempts = 2;
+    let remote = Arc::new(TerrainFile::open_remote(&url, o, Access::Read).unwrap());
+    server.stop();
+    let mut source =
+        TerrainSource::new(remote, RefineOptions { tolerance_px: 2.0, ..Default::default() }, 1, false).unwrap();
+    let cam =
+        Camera::new(DVec3::new(6400.0, 640.0, 1126.0), DVec3::new(6400.0, 7680.0, 393.0), DVec3::Z, 60.0, 800, 450)
+            .unwrap();
+    let first = source.update(&cam, 2.0).unwrap();
+    assert!(first.coarse, "drawn from the opening request: {first:?}");
+    let mut error = None;
+    for _ in 0..400 {
+        std::thread::sleep(Duration::from_millis(5));
+        if let Err(e) = source.update(&cam, 2.0) {
+            error = Some(e.to_string());
+            break;
+        }
+    }
+    let e = error.expect("the failed fetch is reported");
+    assert!(e.contains(&url) && e.lines().count() == 1, "{e}");
+}

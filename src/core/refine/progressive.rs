@@ -272,6 +272,7 @@ pub struct Progressive {
     round: u64,
     plans: Option<Sender<Plan>>,
     arrivals: Receiver<Arrival>,
+    /// The fetch thread (detached when dropped).
     fetcher: Option<JoinHandle<()>>,
     /// Plans sent and not yet answered.
     outstanding: u64,
@@ -498,11 +499,11 @@ impl Progressive {
 
 impl Drop for Progressive {
     fn drop(&mut self) {
-        // Closing the plan channel ends the fetcher after its current fetch.
+        // Closing the plan channel ends the fetcher after its current fetch. It is not waited
+        // for: a fetch from a server that stopped answering can take its whole timeout and
+        // retries, and closing a window must not. What it still fetches goes to the cache only.
         self.plans = None;
-        if let Some(h) = self.fetcher.take() {
-            let _ = h.join();
-        }
+        drop(self.fetcher.take());
     }
 }
 
