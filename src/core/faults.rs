@@ -169,29 +169,22 @@ fn cached(input: &Path, cache_dir: &Path, what: &str) -> Result<PathBuf> {
 }
 
 /// The terrain file of `input` in layout `kind`: `input` itself if it is a local terrain file in
-/// that layout; otherwise converted (from a DEM) or re-laid out (from a terrain file, local or
-/// remote: the experiment counts the faults of local files) once into `cache_dir`, keyed by the
-/// input's name, size and modification time (a remote one's location, payload checksum and ETag).
+/// that layout; otherwise converted (from a DEM) or re-laid out (from a terrain file) once into
+/// `cache_dir`, keyed by the input's name, size and modification time. A remote terrain file is
+/// first copied into `cache_dir` whole (keyed by its location, payload checksum and ETag): the
+/// experiment counts the faults of local files.
 pub fn terrain_in_layout(input: &Path, kind: LayoutKind, cache_dir: &Path, progress: Progress) -> Result<PathBuf> {
-    let remote = crate::pager::remote::is_remote(input);
-    let as_terrain = if remote { Some(TerrainFile::open(input)?) } else { TerrainFile::open(input).ok() };
+    if crate::pager::remote::is_remote(input) {
+        let copy = local_copy(input, cache_dir, &progress)?;
+        return terrain_in_layout(&copy, kind, cache_dir, progress);
+    }
+    let as_terrain = TerrainFile::open(input).ok();
     if let Some(t) = &as_terrain {
-        if t.header().layout == kind && !remote {
+        if t.header().layout == kind {
             return Ok(input.to_path_buf());
         }
     }
-    let what = format!("{}.relief", kind.name());
-    let out = match (&as_terrain, remote) {
-        (Some(t), true) => {
-            let etag = t.remote().and_then(|r| r.etag()).unwrap_or("");
-            let key = xxhash_rust::xxh3::xxh3_64(
-                format!("{}:{:016x}:{etag}", input.display(), t.header().payload_checksum).as_bytes(),
-            );
-            let stem = input.file_stem().map_or("terrain".into(), |s| s.to_string_lossy().into_owned());
-            cache_dir.join(format!("{stem}-{key:016x}.{what}"))
-        }
-        _ => cached(input, cache_dir, &what)?,
-    };
+    let out = cached(input, cache_dir, &format!("{}.relief", kind.name()))?;
     if TerrainFile::open(&out).is_ok() {
         return Ok(out);
     }
@@ -203,6 +196,44 @@ pub fn terrain_in_layout(input: &Path, kind: LayoutKind, cache_dir: &Path, progr
         None => convert(input, &out, &opts)?,
     };
     Ok(out)
+}
+
+/// A remote terrain file copied whole into `cache_dir` (once: kept while its location, payload
+/// checksum and ETag stay the same), read in the largest requests the remote source makes.
+fn local_copy(location: &Path, cache_dir: &Path, progress: &Progress) -> Result<PathBuf> {
+    let t = TerrainFile::open(location)?;
+    let etag = t.remote().and_then(|r| r.etag()).unwrap_or("");
+    let checksum = t.header().payload_checksum;
+    let key = xxhash_rust::xxh3::xxh3_64(format!("{}:{checksum:016x}:{etag}", location.display()).as_bytes());
+    let stem = location.file_stem().map_or("terrain".into(), |s| s.to_string_lossy().into_owned());
+    let copy = cache_dir.join(format!("{stem}-{key:016x}.relief"));
+    if TerrainFile::open(&copy).is_ok_and(|c| c.header().payload_checksum == checksum) {
+        return Ok(copy);
+    }
+    std::fs::create_dir_all(cache_dir).map_err(|e| Error::io(cache_dir, e))?;
+    let source = t.pager().source();
+    let len = source.len();
+    let chunk = t.remote().map_or(4 << 20, |r| r.options().max_request).max(4096);
+    let bar = progress.bar("download", len, "bytes");
+    let mut failed = None;
+    crate::sys::atomic_file::write(&copy, |w| {
+        let mut buf = vec![0u8; chunk as usize];
+        let mut at = 0;
+        while at < len {
+            let n = (len - at).min(chunk) as usize;
+            if let Err(e) = source.read_at(at, &mut buf[..n]) {
+                failed = Some(e);
+                return Err(std::io::Error::other("remote read failed"));
+            }
+            std::io::Write::write_all(w, &buf[..n])?;
+            at += n as u64;
+            bar.inc(n as u64);
+        }
+        Ok(())
+    })
+    .map_err(|e| failed.take().unwrap_or(e))?;
+    bar.finish_and_clear();
+    Ok(copy)
 }
 
 /// The LRU model of `memory_bytes` observing `pager`.

@@ -284,3 +284,33 @@ fn a_server_gone_mid_flight_ends_the_flight_with_a_one_line_error() {
     let e = error.expect("the failed fetch is reported");
     assert!(e.contains(&url) && e.lines().count() == 1, "{e}");
 }
+
+/// A reader going through the file in order gets ever larger requests (read-ahead), not one per
+/// read; a random reader gets no more than it asks for.
+#[test]
+fn sequential_reads_are_served_by_growing_read_ahead() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let bytes = std::fs::read(&local).unwrap();
+    let server = serve(&local, 0);
+    let remote = RemoteFile::open(&server.url("zurich.relief"), options(&dir.path().join("cache"))).unwrap();
+    let mut got = vec![0u8; bytes.len()];
+    for (k, chunk) in got.chunks_mut(12 << 10).enumerate() {
+        remote.read_at((k * (12 << 10)) as u64, chunk).unwrap();
+    }
+    assert!(got == bytes, "the same bytes");
+    let reads = bytes.len().div_ceil(12 << 10);
+    let s = remote.stats();
+    assert!(s.requests < 20, "{} requests for {reads} sequential reads: {s:?}", s.requests);
+    assert!(s.bytes <= bytes.len() as u64, "nothing fetched twice: {s:?}");
+    // Random reads (backwards) fetch only their own pages.
+    let other = RemoteFile::open(&server.url("zurich.relief"), options(&dir.path().join("cache2"))).unwrap();
+    let mut one = vec![0u8; 100];
+    // Past the opening range (the first MiB), going backwards, each read within one page.
+    for k in (0..5u64).rev() {
+        other.read_at((1 << 20) + 4096 + k * 800_000, &mut one).unwrap();
+    }
+    let s = other.stats();
+    assert_eq!(s.requests, 1 + 5, "the open and one request per read: {s:?}");
+    assert_eq!(s.bytes, (1 << 20) + 5 * 4096, "one page each: {s:?}");
+}

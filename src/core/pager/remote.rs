@@ -257,6 +257,13 @@ pub struct RemoteFile {
     client: Client,
     path: PathBuf,
     cache: DiskCache,
+    /// Sequential reads ([`Source::read_at`]): where the last one ended, and the pages fetched
+    /// ahead of the next (doubled while reads stay sequential, up to one largest request).
+    next_offset: AtomicU64,
+    readahead_pages: AtomicU64,
+    /// The end of the pages fetched ahead (page number): the next window is fetched when a read
+    /// passes it.
+    readahead_end: AtomicU64,
 }
 
 /// The requests of one remote file: where it is, how to ask, what it was when opened.
@@ -308,7 +315,14 @@ impl RemoteFile {
             None => DiskCache::temporary(location, len)?,
         };
         cache.put(0, &first)?;
-        Ok(RemoteFile { client, path: PathBuf::from(location), cache })
+        Ok(RemoteFile {
+            client,
+            path: PathBuf::from(location),
+            cache,
+            next_offset: AtomicU64::new(u64::MAX),
+            readahead_pages: AtomicU64::new(0),
+            readahead_end: AtomicU64::new(0),
+        })
     }
 
     /// The location as given (`http://…`, `s3://…`).
@@ -342,7 +356,17 @@ impl RemoteFile {
     /// The whole pages `first..end` (page numbers), from the cache where present, else fetched
     /// (coalesced runs, bounded in flight) and cached. Calls `got(page, bytes)` for every run of
     /// pages it has, in no particular order; the bytes are whole pages except at the file's end.
-    pub fn fetch_runs(&self, runs: &[(u64, u64)], mut got: impl FnMut(u64, &[u8]) -> Result<()>) -> Result<()> {
+    pub fn fetch_runs(&self, runs: &[(u64, u64)], got: impl FnMut(u64, &[u8]) -> Result<()>) -> Result<()> {
+        self.fetch(runs, true, got)
+    }
+
+    /// [`Self::fetch_runs`], reading the pages already cached only when `read_cached`.
+    fn fetch(
+        &self,
+        runs: &[(u64, u64)],
+        read_cached: bool,
+        mut got: impl FnMut(u64, &[u8]) -> Result<()>,
+    ) -> Result<()> {
         let mut missing = Vec::new();
         for &(first, end) in runs {
             let present = self.cache.present(first, end)?;
@@ -353,11 +377,11 @@ impl RemoteFile {
                 while q < end && present[(q - first) as usize] == here {
                     q += 1;
                 }
-                if here {
+                if here && read_cached {
                     let bytes = self.cache.get(p * PAGE_BYTES, (q * PAGE_BYTES).min(self.client.len))?;
                     self.client.counters.cache_hit_pages.fetch_add(q - p, Ordering::Relaxed);
                     got(p, &bytes)?;
-                } else {
+                } else if !here {
                     missing.push((p, q));
                 }
                 p = q;
@@ -598,6 +622,21 @@ impl Source for RemoteFile {
             return Ok(());
         }
         let (first, last) = (offset / PAGE_BYTES, (end - 1) / PAGE_BYTES);
+        // A reader going through the file in order (a whole-file pass, re-laying out) gets the
+        // pages after its read too, in ever larger requests, instead of one request per read.
+        let sequential = self.next_offset.swap(end, Ordering::Relaxed) == offset;
+        if !sequential {
+            self.readahead_pages.store(0, Ordering::Relaxed);
+        } else if last + 1 > self.readahead_end.load(Ordering::Relaxed) {
+            // Past the window fetched ahead: the read's pages and the next window (twice the
+            // last, at most one largest request), missing ones only, in one round of requests.
+            let max = (self.client.options.max_request / PAGE_BYTES).max(1);
+            let ahead = (self.readahead_pages.load(Ordering::Relaxed) * 2).clamp(4, max);
+            self.readahead_pages.store(ahead, Ordering::Relaxed);
+            let end_page = (last + 1 + ahead).min(self.client.len.div_ceil(PAGE_BYTES));
+            self.readahead_end.store(end_page, Ordering::Relaxed);
+            self.fetch(&[(first, end_page)], false, |_, _| Ok(()))?;
+        }
         self.fetch_runs(&[(first, last + 1)], |p, bytes| {
             // Copy the overlap of the run [p·page, p·page + len) with [offset, end).
             let run_start = p * PAGE_BYTES;
