@@ -34,10 +34,10 @@ use std::time::Duration;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::format::terrain::{Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
+use crate::format::terrain::{Header, Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
 use crate::layout::hierarchy::{Grid, VertexKind};
 use crate::layout::{AnyLayout, Layout, LayoutVisitor};
-use crate::pager::remote::{RemoteStats, PAGE_BYTES};
+use crate::pager::remote::PAGE_BYTES;
 use crate::refine::records::RecordSource;
 use crate::refine::{Morph, RefineCounters, RefineOptions, Refiner, Strip};
 
@@ -128,8 +128,6 @@ pub struct ProgressiveFrame {
     pub round_trips: u64,
     /// Strip vertices whose height was not fetched yet (drawn at the terrain's mid height).
     pub missing_heights: u64,
-    /// What the remote file has cost so far (cumulative).
-    pub remote: RemoteStats,
 }
 
 impl ProgressiveFrame {
@@ -308,23 +306,18 @@ impl Progressive {
         let present = remote.cache().present(first_page, end_page)?;
         let mut have = Vec::new();
         for b in 0..n_blocks {
-            let (start, end) = p.block_range(b);
+            let (start, end) = block_range(h, b);
             let pages = (start / PAGE_BYTES - first_page) as usize..(end.div_ceil(PAGE_BYTES) - first_page) as usize;
             if present[pages].iter().all(|&x| x) {
                 have.push((b, decode(&remote.cache().get(start, end)?)));
             }
         }
-        let asked: Vec<bool> = {
-            let mut a = vec![false; n_blocks as usize];
-            for (b, _) in &have {
-                a[*b as usize] = true;
-            }
-            a
-        };
         let mut settle = Settle::new(terrain.layout().clone(), n_blocks as usize);
         let counts: Vec<(u64, u64)> = have.iter().map(|(b, records)| (*b, records.len() as u64)).collect();
         let effective = settle.add(&counts);
         p.insert(have, effective);
+        // The fetcher asks for nothing that is here.
+        let asked = settle.here.clone();
         let (plan_tx, plan_rx) = channel::<Plan>();
         let (arrive_tx, arrive_rx) = channel::<Arrival>();
         let t = terrain.clone();
@@ -343,17 +336,6 @@ impl Progressive {
             p.send(Plan { round: 2, misses: missing });
         }
         Ok(p)
-    }
-
-    pub fn terrain(&self) -> &Arc<TerrainFile> {
-        &self.terrain
-    }
-
-    /// Bytes `[start, end)` of block `b` in the file.
-    fn block_range(&self, b: u64) -> (u64, u64) {
-        let h = self.terrain.header();
-        let start = h.payload_offset + b * BLOCK_BYTES;
-        (start, (start + BLOCK_BYTES).min(h.payload_offset + h.payload_bytes))
     }
 
     fn present(&self, index: u64) -> bool {
@@ -390,13 +372,11 @@ impl Progressive {
     }
 
     /// Takes what has arrived (never waits); a failed fetch is the error.
-    pub fn absorb(&mut self) -> Result<bool> {
-        let mut any = false;
+    pub fn absorb(&mut self) -> Result<()> {
         while let Ok(a) = self.arrivals.try_recv() {
-            any = true;
             self.arrived(a)?;
         }
-        Ok(any)
+        Ok(())
     }
 
     fn arrived(&mut self, a: Arrival) -> Result<()> {
@@ -428,11 +408,6 @@ impl Progressive {
             }
             Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => Ok(false),
         }
-    }
-
-    /// Whether fetches are outstanding.
-    pub fn fetching(&self) -> bool {
-        self.outstanding > 0
     }
 
     /// Refines `camera`'s view with what is here (after absorbing what arrived), asks for what
@@ -492,8 +467,7 @@ impl Progressive {
             let round = self.round + 1;
             self.send(Plan { round, misses });
         }
-        let remote = terrain.remote().map(|r| r.stats()).unwrap_or_default();
-        Ok(ProgressiveFrame { counters, missed_records, round_trips: self.round, missing_heights, remote })
+        Ok(ProgressiveFrame { counters, missed_records, round_trips: self.round, missing_heights })
     }
 }
 
@@ -505,6 +479,12 @@ impl Drop for Progressive {
         self.plans = None;
         drop(self.fetcher.take());
     }
+}
+
+/// Bytes `[start, end)` of record block `b` in a terrain file with header `h`.
+fn block_range(h: &Header, b: u64) -> (u64, u64) {
+    let start = h.payload_offset + b * BLOCK_BYTES;
+    (start, (start + BLOCK_BYTES).min(h.payload_offset + h.payload_bytes))
 }
 
 /// Records from their file bytes (a whole number of records).
@@ -525,7 +505,6 @@ fn fetcher(
     let Some(remote) = terrain.remote() else { return };
     let layout = terrain.layout().clone();
     let h = terrain.header().clone();
-    let payload_end = h.payload_offset + h.payload_bytes;
     while let Ok(first) = plans.recv() {
         // Plans queued behind a fetch are served together: one round of requests.
         let mut plan_count = 1u64;
@@ -554,8 +533,7 @@ fn fetcher(
         let mut staged: BTreeMap<u64, Box<[Record]>> = BTreeMap::new();
         let mut runs: Vec<(u64, u64)> = Vec::new();
         for &b in &wanted {
-            let start = h.payload_offset + b * BLOCK_BYTES;
-            let end = (start + BLOCK_BYTES).min(payload_end);
+            let (start, end) = block_range(&h, b);
             staged
                 .insert(b, vec![Record::default(); ((end - start) / RECORD_BYTES as u64) as usize].into_boxed_slice());
             let (p, q) = (start / PAGE_BYTES, end.div_ceil(PAGE_BYTES));
