@@ -18,6 +18,7 @@
 //! is the underside in a right-handed, z-up world. Renderers set their front face accordingly.
 
 pub mod check;
+pub(crate) mod lanes;
 pub mod metric;
 pub mod minimal;
 pub mod progressive;
@@ -200,36 +201,129 @@ impl std::ops::AddAssign for RefineCounters {
 
 /// Everything the active test needs for one frame, in world metres: the shared [`Lod`] test, the
 /// grid's spacing, the rounding slack and the geomorph radius.
+///
+/// A Euclidean metric is evaluated in f32 ([`Fast`]), four lanes at a time in the walk; any other
+/// metric in f64 through [`Lod::test`].
 #[derive(Clone, Debug)]
 pub struct View<M: ErrorMetric> {
     pub lod: Lod<M>,
     spacing_m: [f64; 2],
     kappa_inner: f64,
-    /// Slack added to a vertex's radius (metres), per level: `margin · level`, with the margin
-    /// from [`crate::lod::margin_for_scale`], so that rounding in the f64 test can never make a
-    /// child active while its parent is not. A table, as a grid has at most 63 levels.
+    /// Slack added to a vertex's radius (metres), per level, for the f64 test: `margin · level`,
+    /// with the margin from [`crate::lod::margin_for_scale`], so that rounding in the f64 test
+    /// can never make a child active while its parent is not. A table, as a grid has at most 63
+    /// levels.
     slack_m: [f64; 64],
-    /// The constants of [`Self::active_pair`], each in both lanes.
-    lanes: Lanes,
+    pub(super) fast: Fast,
     cull: bool,
     morph: bool,
 }
 
-/// Two f64 lanes, aligned for one load.
-#[derive(Clone, Copy, Debug, Default)]
-#[repr(C, align(16))]
-struct Pair([f64; 2]);
-
-/// [`View::active_pair`]'s constants.
+/// The constants of the f32 test (ARCHITECTURE.md, "Refinement: the f32 test"), laid out for
+/// SSE lanes: coordinates come as `(x_left, x_right, y_left, y_right)`.
+///
+/// Positions are taken relative to an integer grid origin near the eye, so that `x − origin` is
+/// exact and the eye-relative position carries a rounding error relative to its own size, not to
+/// the terrain's. The reach is `(κ δ + r) · grow[l] + mu[l]` and the culling radius
+/// `(r + eps[l] · reach) + mu[l]`, with `grow = 1 + l·2⁻¹⁷`, `eps = l·2⁻¹⁷` and `mu = l·μ`
+/// (μ = 2⁻¹⁹ of the larger of the spacing and the height scale, for the absolute rounding of the
+/// eye's offset). From child to parent these grow by 2⁻¹⁷ of the reach, far more than f32
+/// rounding moves either side, so a child is never active, nor unculled, while its parent is not.
 #[derive(Clone, Debug)]
-struct Lanes {
-    spacing_x: Pair,
-    spacing_y: Pair,
-    eye_x: Pair,
-    eye_y: Pair,
-    eye_z: Pair,
-    kappa: Pair,
-    slack: [Pair; 64],
+#[repr(C, align(16))]
+pub(super) struct Fast {
+    pub origin: [i32; 4],
+    pub spacing: [f32; 4],
+    pub frac: [f32; 4],
+    pub eye_z: [f32; 4],
+    pub kappa: [f32; 4],
+    /// The frustum planes' inward normals: per plane, per component (x, y, z), in every lane;
+    /// zero past the last plane (eight, so that a mask bit indexes it without a check).
+    pub planes: [[[f32; 4]; 3]; 8],
+    pub grow: [[f32; 4]; 64],
+    pub eps: [[f32; 4]; 64],
+    pub mu: [[f32; 4]; 64],
+}
+
+/// The relative slack per level of the f32 test.
+const FAST_EPS: f32 = 1.0 / 131072.0;
+
+impl Fast {
+    fn new<M: ErrorMetric>(lod: &Lod<M>, spacing_m: [f64; 2], max_coord: u32, z_range_m: [f64; 2]) -> Fast {
+        // The origin stays one post inside the grid's range so that every `x − origin` fits an
+        // i32 even on the largest grid (coordinates up to 2³¹).
+        let hi = (max_coord as f64 - 1.0).max(1.0);
+        let org = |e: f64, s: f64| -> i32 {
+            let o = (e / s).round();
+            if o.is_finite() {
+                o.clamp(1.0, hi) as i64 as i32
+            } else {
+                1
+            }
+        };
+        let (ox, oy) = (org(lod.eye.x, spacing_m[0]), org(lod.eye.y, spacing_m[1]));
+        let fx = (lod.eye.x - (ox as u32) as f64 * spacing_m[0]) as f32;
+        let fy = (lod.eye.y - (oy as u32) as f64 * spacing_m[1]) as f32;
+        let (sx, sy) = (spacing_m[0] as f32, spacing_m[1] as f32);
+        let scale = [spacing_m[0], spacing_m[1], z_range_m[0].abs(), z_range_m[1].abs(), lod.eye.z.abs(), 1.0]
+            .into_iter()
+            .filter(|v| v.is_finite())
+            .fold(0.0, f64::max);
+        let mu = (scale / 524_288.0) as f32;
+        Fast {
+            origin: [ox, ox, oy, oy],
+            spacing: [sx, sx, sy, sy],
+            frac: [fx, fx, fy, fy],
+            eye_z: [lod.eye.z as f32; 4],
+            kappa: [lod.kappa as f32; 4],
+            planes: std::array::from_fn(|k| {
+                std::array::from_fn(|c| [lod.normals.get(k).map_or(0.0, |n| n.to_array()[c] as f32); 4])
+            }),
+            grow: std::array::from_fn(|l| [1.0 + l as f32 * FAST_EPS; 4]),
+            eps: std::array::from_fn(|l| [l as f32 * FAST_EPS; 4]),
+            mu: std::array::from_fn(|l| [l as f32 * mu; 4]),
+        }
+    }
+
+    /// Position of post `(x, y)` with height `z` relative to the eye, f32.
+    #[inline(always)]
+    pub fn rel(&self, x: u32, y: u32, z: f32) -> [f32; 3] {
+        let qx = x.wrapping_sub(self.origin[0] as u32) as i32 as f32;
+        let qy = y.wrapping_sub(self.origin[2] as u32) as i32 as f32;
+        [qx * self.spacing[0] - self.frac[0], qy * self.spacing[2] - self.frac[2], z - self.eye_z[0]]
+    }
+
+    /// The f32 test of one vertex: the reference the walk's lanes reproduce operation for
+    /// operation.
+    #[inline(always)]
+    pub fn test<const CULL: bool>(&self, x: u32, y: u32, level: u32, rec: Record, mask: u8) -> Test {
+        let [rx, ry, rz] = self.rel(x, y, rec.z);
+        let l = level as usize & 63;
+        let d2 = (rx * rx + ry * ry) + rz * rz;
+        let reach = (self.kappa[0] * rec.error + rec.radius) * self.grow[l][0] + self.mu[l][0];
+        // Written so that a NaN anywhere (a corrupt or missing record) reads as inactive.
+        if !(reach * reach > d2) {
+            return Test::Inactive;
+        }
+        let mut mask = mask;
+        if CULL && mask != 0 {
+            let rc = (rec.radius + self.eps[l][0] * reach) + self.mu[l][0];
+            for k in 0..crate::camera::PLANES {
+                let bit = 1u8 << k;
+                if mask & bit != 0 {
+                    let [nx, ny, nz] = self.planes[k];
+                    let s = (nx[0] * rx + ny[0] * ry) + nz[0] * rz;
+                    if s < -rc {
+                        return Test::Culled;
+                    }
+                    if s > rc {
+                        mask &= !bit;
+                    }
+                }
+            }
+        }
+        Test::Active { mask }
+    }
 }
 
 pub use crate::lod::Test;
@@ -259,18 +353,11 @@ impl<M: ErrorMetric> View<M> {
         .filter(|v| v.is_finite())
         .fold(0.0, f64::max);
         let margin_m = crate::lod::margin_for_scale(scale);
-        let two = |v: f64| Pair([v, v]);
-        let lanes = Lanes {
-            spacing_x: two(spacing_m[0]),
-            spacing_y: two(spacing_m[1]),
-            eye_x: two(lod.eye.x),
-            eye_y: two(lod.eye.y),
-            eye_z: two(lod.eye.z),
-            kappa: two(lod.kappa),
-            slack: std::array::from_fn(|level| two(margin_m * level as f64)),
-        };
+        // The grid's largest coordinate, from its extent (the origin only needs to be near it).
+        let max_coord = (extent_m[0] / spacing_m[0]).max(extent_m[1] / spacing_m[1]);
+        let max_coord = if max_coord.is_finite() { max_coord.clamp(2.0, u32::MAX as f64) as u32 } else { 2 };
         View {
-            lanes,
+            fast: Fast::new(&lod, spacing_m, max_coord, z_range_m),
             kappa_inner: lod.kappa / ratio,
             lod,
             spacing_m,
@@ -295,70 +382,16 @@ impl<M: ErrorMetric> View<M> {
         DVec3::new(x as f64 * self.spacing_m[0], y as f64 * self.spacing_m[1], z as f64)
     }
 
-    /// The active test with frustum culling against the planes in `mask` (see [`Test`]).
+    /// The active test with frustum culling against the planes in `mask` (see [`Test`]): in f32
+    /// for a Euclidean metric ([`Fast::test`]), else in f64.
     #[inline(always)]
     pub fn test<const CULL: bool>(&self, x: u32, y: u32, level: u32, rec: Record, mask: u8) -> Test {
+        if M::EUCLIDEAN {
+            return self.fast.test::<CULL>(x, y, level, rec, mask);
+        }
         let rel = self.position(x, y, rec.z) - self.lod.eye;
         let r = rec.radius as f64 + self.slack(level);
         self.lod.test::<CULL>(rel, rec.error as f64, r, mask)
-    }
-
-    /// [`Self::test`] without culling for two vertices of one level at once, for a Euclidean
-    /// metric: whether each is active. The same operations in the same order as the one-vertex
-    /// test, in two lanes, so the same answers (a test compares them).
-    #[inline(always)]
-    pub(crate) fn active_pair(
-        &self,
-        l: (u32, u32),
-        r: (u32, u32),
-        rec_l: Record,
-        rec_r: Record,
-        level: u32,
-    ) -> (bool, bool) {
-        #[cfg(target_arch = "x86_64")]
-        if M::EUCLIDEAN {
-            return self.active_pair_sse2(l, r, rec_l, rec_r, level);
-        }
-        let one = |(x, y): (u32, u32), rec| matches!(self.test::<false>(x, y, level, rec, 0), Test::Active { .. });
-        (one(l, rec_l), one(r, rec_r))
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[inline(always)]
-    fn active_pair_sse2(&self, l: (u32, u32), r: (u32, u32), rec_l: Record, rec_r: Record, level: u32) -> (bool, bool) {
-        use std::arch::x86_64::*;
-        let c = &self.lanes;
-        // SAFETY: SSE2 is part of the x86-64 baseline; the loads read the 16-byte-aligned pairs
-        // of `self.lanes`.
-        unsafe {
-            let ld = |p: &Pair| _mm_load_pd(p.0.as_ptr());
-            // (xl, yl, xr, yr) as i32 lanes, biased into i32 (x − 2³¹, exact), reordered to
-            // (xl, xr, yl, yr), converted and unbiased (exact).
-            let keys = _mm_set_epi32(
-                (r.1 ^ 0x8000_0000) as i32,
-                (r.0 ^ 0x8000_0000) as i32,
-                (l.1 ^ 0x8000_0000) as i32,
-                (l.0 ^ 0x8000_0000) as i32,
-            );
-            let v = _mm_shuffle_epi32::<0b11_01_10_00>(keys);
-            let bias = _mm_set1_pd(2147483648.0);
-            let xs = _mm_add_pd(_mm_cvtepi32_pd(v), bias);
-            let ys = _mm_add_pd(_mm_cvtepi32_pd(_mm_unpackhi_epi64(v, v)), bias);
-            let rx = _mm_sub_pd(_mm_mul_pd(xs, ld(&c.spacing_x)), ld(&c.eye_x));
-            let ry = _mm_sub_pd(_mm_mul_pd(ys, ld(&c.spacing_y)), ld(&c.eye_y));
-            let rz = _mm_sub_pd(_mm_cvtps_pd(_mm_setr_ps(rec_l.z, rec_r.z, 0.0, 0.0)), ld(&c.eye_z));
-            // |rel|² as glam's length_squared: (x² + y²) + z².
-            let d2 = _mm_add_pd(_mm_add_pd(_mm_mul_pd(rx, rx), _mm_mul_pd(ry, ry)), _mm_mul_pd(rz, rz));
-            let radius = _mm_add_pd(
-                _mm_cvtps_pd(_mm_setr_ps(rec_l.radius, rec_r.radius, 0.0, 0.0)),
-                ld(&c.slack[level as usize & 63]),
-            );
-            let error = _mm_cvtps_pd(_mm_setr_ps(rec_l.error, rec_r.error, 0.0, 0.0));
-            let reach = _mm_add_pd(_mm_mul_pd(ld(&c.kappa), error), radius);
-            // reach² > d², false for NaN (a corrupt record is never active), as in the scalar test.
-            let m = _mm_movemask_pd(_mm_cmpgt_pd(_mm_mul_pd(reach, reach), d2));
-            (m & 1 != 0, m & 2 != 0)
-        }
     }
 
     /// Whether a vertex is active, evaluated from scratch (all planes); equals what refinement
@@ -962,53 +995,6 @@ mod tests {
                 - (b.y as i64 - a.y as i64) * (c.x as i64 - a.x as i64);
             assert!(cross < 0);
         }
-    }
-
-    /// The two-lane test answers as the one-vertex test, for vertices near and far, on and off
-    /// the sphere boundaries, at the largest coordinates, and for corrupt (NaN) records.
-    #[test]
-    fn the_pair_test_equals_the_single_test() {
-        let camera =
-            Camera::new(DVec3::new(5000.0, -300.0, 900.0), DVec3::new(5200.0, 4000.0, 0.0), DVec3::Z, 60.0, 1920, 1080)
-                .unwrap();
-        let options = RefineOptions::default();
-        let view = View::new(&camera, &options, Isotropic, [25.0, 31.5], [12800.0, 16000.0], [-50.0, 2500.0]);
-        let mut s = 7u64;
-        let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            s >> 11
-        };
-        let single = |(x, y): (u32, u32), rec: Record, level: u32| {
-            matches!(view.test::<false>(x, y, level, rec, 0), Test::Active { .. })
-        };
-        let mut seen = [0usize; 2];
-        for k in 0..200_000u64 {
-            let pos = |r: u64| -> (u32, u32) {
-                match k % 4 {
-                    // The largest coordinates (the bias into i32 must be exact).
-                    0 => (u32::MAX - (r % 7) as u32, (1u32 << 31) + (r % 5) as u32),
-                    _ => ((r % 1025) as u32, ((r >> 20) % 1025) as u32),
-                }
-            };
-            let (l, r) = (pos(rnd()), pos(rnd()));
-            let rec = |v: u64| {
-                let z = (v % 2600) as f32 - 50.0;
-                let error = ((v >> 12) % 4000) as f32 * 0.05;
-                let radius = ((v >> 24) % 3000) as f32;
-                match v % 97 {
-                    0 => Record { z, error: f32::NAN, radius },
-                    1 => Record { z: f32::NAN, error, radius },
-                    _ => Record { z, error, radius },
-                }
-            };
-            let (rl, rr) = (rec(rnd()), rec(rnd()));
-            let level = (rnd() % 40) as u32;
-            let want = (single(l, rl, level), single(r, rr, level));
-            assert_eq!(view.active_pair(l, r, rl, rr, level), want, "{l:?} {rl:?} / {r:?} {rr:?} at level {level}");
-            seen[want.0 as usize] += 1;
-        }
-        // Both answers occur often enough for the comparison to mean something.
-        assert!(seen[0] > 10_000 && seen[1] > 10_000, "{seen:?}");
     }
 
     #[test]

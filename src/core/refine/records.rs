@@ -14,6 +14,19 @@ use crate::pager::{PageObserver, Pager};
 pub trait RecordSource: Sync {
     fn record(&self, index: u64) -> Record;
 
+    /// `record(index)` as lanes `(z, error, radius, anything)`, for the walk's SSE test.
+    #[inline(always)]
+    fn record4(&self, index: u64) -> [f32; 4] {
+        let r = self.record(index);
+        [r.z, r.error, r.radius, 0.0]
+    }
+
+    /// [`Self::record4`] of two records.
+    #[inline(always)]
+    fn record_pair4(&self, a: u64, b: u64) -> ([f32; 4], [f32; 4]) {
+        (self.record4(a), self.record4(b))
+    }
+
     /// Hint that `record(index)` will be read soon (a cache prefetch); must not fault.
     #[inline(always)]
     fn prefetch(&self, _index: u64) {}
@@ -23,6 +36,33 @@ impl RecordSource for [Record] {
     #[inline(always)]
     fn record(&self, index: u64) -> Record {
         self[index as usize]
+    }
+
+    #[inline(always)]
+    fn record4(&self, index: u64) -> [f32; 4] {
+        let i = index as usize;
+        if i < self.len().saturating_sub(1) {
+            // SAFETY: records `i` and `i + 1` are in the slice, so its 16 bytes from record `i`
+            // (12 of them, and 4 of the next) are readable; `[f32; 4]` is read unaligned.
+            unsafe { self.as_ptr().add(i).cast::<[f32; 4]>().read_unaligned() }
+        } else {
+            let r = self[i];
+            [r.z, r.error, r.radius, 0.0]
+        }
+    }
+
+    #[inline(always)]
+    fn record_pair4(&self, a: u64, b: u64) -> ([f32; 4], [f32; 4]) {
+        let (i, j) = (a as usize, b as usize);
+        if i.max(j) < self.len().saturating_sub(1) {
+            // SAFETY: as in `record4`, for both.
+            unsafe {
+                let p = self.as_ptr();
+                (p.add(i).cast::<[f32; 4]>().read_unaligned(), p.add(j).cast::<[f32; 4]>().read_unaligned())
+            }
+        } else {
+            (self.record4(a), self.record4(b))
+        }
     }
 
     #[inline(always)]
@@ -60,6 +100,20 @@ impl<O: PageObserver> RecordSource for MappedRecords<'_, O> {
     fn record(&self, index: u64) -> Record {
         self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
         self.records[index as usize]
+    }
+
+    #[inline(always)]
+    fn record4(&self, index: u64) -> [f32; 4] {
+        self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
+        self.records.record4(index)
+    }
+
+    #[inline(always)]
+    fn record_pair4(&self, a: u64, b: u64) -> ([f32; 4], [f32; 4]) {
+        for i in [a, b] {
+            self.observer.read(self.payload_offset + i * RECORD_BYTES as u64, RECORD_BYTES as u64);
+        }
+        self.records.record_pair4(a, b)
     }
 
     #[inline(always)]

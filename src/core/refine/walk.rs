@@ -4,10 +4,11 @@
 //!
 //! What makes it fast (ARCHITECTURE.md, "Refinement"):
 //! - A vertex is two words in registers: its grid position packed as `x | y << 32` (a strip
-//!   vertex as it is written, and enough to get the children by integer arithmetic,
-//!   [`crate::layout::hierarchy::split_children_packed`]) and its record index. Children come from the level's parity (compile-time:
-//!   odd and even levels are separate monomorphs, the even one inlined into the odd one, so one
-//!   call refines two levels) and the layout's index shortcut.
+//!   vertex as it is written) and its record index. A node's two children come by lane integer
+//!   arithmetic ([`lanes::children`]; the order from the level's parity, compile-time: odd and
+//!   even levels are separate monomorphs, the even one inlined into the odd one, so one call
+//!   refines two levels) and their indices by the layout's shortcut; for a Euclidean metric both
+//!   are tested at once in f32 lanes ([`lanes::pair`], [`lanes::cull`]).
 //! - Each child is tested by its parent, so only active vertices recurse.
 //! - Culling is a compile-time mode: once a sphere is inside every frustum plane, its whole
 //!   subtree runs the variant without plane tests.
@@ -19,6 +20,7 @@ use crate::format::terrain::Record;
 use crate::layout::hierarchy::{pack, split_children_packed, unpack};
 use crate::layout::{Layout, Vertex};
 use crate::lod::Test;
+use crate::refine::lanes::{self, record_of};
 use crate::refine::metric::ErrorMetric;
 use crate::refine::records::RecordSource;
 use crate::refine::{Morph, RefineCounters, Strip, StripVertex, View};
@@ -408,9 +410,9 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
     }
 
     /// The children of `s` by the level's parity and the layout's index shortcut, each tested
-    /// before it is entered; `a` appended between them. Without planes left to cull against, both
-    /// children are tested at once ([`View::active_pair`]), before either is entered (so their
-    /// records are read one after the other).
+    /// before it is entered; `a` appended between them. For a Euclidean metric both children are
+    /// tested at once in f32 lanes ([`lanes`]), culling included, before either is entered (so
+    /// their records are read one after the other); for any other metric one after the other.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn node<const ODD: bool, const MASKED: bool>(
@@ -426,7 +428,8 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
     ) -> At {
         let (l, mask) = (lm & 0xff, (lm >> 8) as u8);
         // The split vertex has level l − 1: odd when the triangle's level is even.
-        let [cl, cr] = if ODD { split_children_packed::<false>(a, s) } else { split_children_packed::<true>(a, s) };
+        let kids = if ODD { lanes::children::<false>(a, s) } else { lanes::children::<true>(a, s) };
+        let (cl, cr) = (kids.left, kids.right);
         let [il, ir] = self.layout.inner_child_indices(ai, si, unpack(cl), unpack(cr));
         if L::PREFETCH_GRANDCHILDREN && l >= 4 {
             // The grandchildren are read right after the children: start their loads now, so
@@ -454,8 +457,8 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
         let (left, right) = m.halves(p);
         self.counters.visited += 2;
         // The children's triangles have level l − 1, of the other parity.
-        if MASKED || !M::EUCLIDEAN {
-            if ODD {
+        if !M::EUCLIDEAN {
+            return if ODD {
                 let at = self.side::<false, MASKED>(at, s, si, cl, il, l - 1, mask, left);
                 let at = self.out.append::<S, 1>(at, a, m.apex());
                 self.side::<false, MASKED>(at, s, si, cr, ir, l - 1, mask, right)
@@ -463,21 +466,34 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
                 let at = self.side::<true, MASKED>(at, s, si, cl, il, l - 1, mask, left);
                 let at = self.out.append::<S, 0>(at, a, m.apex());
                 self.side::<true, MASKED>(at, s, si, cr, ir, l - 1, mask, right)
+            };
+        }
+        let (rl, rr) = (self.records.record4(il), self.records.record4(ir));
+        let pair = lanes::pair(&self.view.fast, &kids, rl, rr, l - 2);
+        let (mut on_l, mut on_r) = (pair.bits & 1 != 0, pair.bits & 2 != 0);
+        let (mut mask_l, mut mask_r) = (0, 0);
+        if MASKED && pair.bits != 0 {
+            let [(out_l, keep_l), (out_r, keep_r)] = lanes::cull(&self.view.fast, &pair, l - 2, mask);
+            if on_l && out_l {
+                on_l = false;
+                self.counters.culled += 1;
             }
+            if on_r && out_r {
+                on_r = false;
+                self.counters.culled += 1;
+            }
+            (mask_l, mask_r) = (keep_l, keep_r);
+        }
+        let tl = on_l.then(|| (mask_l, self.point(&left, cl, record_of(rl), l - 2)));
+        let tr = on_r.then(|| (mask_r, self.point(&right, cr, record_of(rr), l - 2)));
+        if ODD {
+            let at = self.enter::<false, MASKED>(at, s, si, cl, il, l - 1, tl, left);
+            let at = self.out.append::<S, 1>(at, a, m.apex());
+            self.enter::<false, MASKED>(at, s, si, cr, ir, l - 1, tr, right)
         } else {
-            let (rl, rr) = (self.records.record(il), self.records.record(ir));
-            let (on_l, on_r) = self.view.active_pair(unpack(cl), unpack(cr), rl, rr, l - 2);
-            let tl = on_l.then(|| (0, self.point(&left, cl, rl, l - 2)));
-            let tr = on_r.then(|| (0, self.point(&right, cr, rr, l - 2)));
-            if ODD {
-                let at = self.enter::<false, false>(at, s, si, cl, il, l - 1, tl, left);
-                let at = self.out.append::<S, 1>(at, a, m.apex());
-                self.enter::<false, false>(at, s, si, cr, ir, l - 1, tr, right)
-            } else {
-                let at = self.enter::<true, false>(at, s, si, cl, il, l - 1, tl, left);
-                let at = self.out.append::<S, 0>(at, a, m.apex());
-                self.enter::<true, false>(at, s, si, cr, ir, l - 1, tr, right)
-            }
+            let at = self.enter::<true, MASKED>(at, s, si, cl, il, l - 1, tl, left);
+            let at = self.out.append::<S, 0>(at, a, m.apex());
+            self.enter::<true, MASKED>(at, s, si, cr, ir, l - 1, tr, right)
         }
     }
 
