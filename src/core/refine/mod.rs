@@ -302,7 +302,8 @@ impl Fast {
         let d2 = (rx * rx + ry * ry) + rz * rz;
         let reach = (self.kappa[0] * rec.error + rec.radius) * self.grow[l][0] + self.mu[l][0];
         // Written so that a NaN anywhere (a corrupt or missing record) reads as inactive.
-        if !(reach * reach > d2) {
+        let active = reach * reach > d2;
+        if !active {
             return Test::Inactive;
         }
         let mut mask = mask;
