@@ -14,6 +14,12 @@ pub fn record_of(r: Lanes4) -> Record {
     Record { z: r[0], error: r[1], radius: r[2] }
 }
 
+/// A record as lanes (the fourth zero).
+#[inline(always)]
+pub fn lanes_of(r: Record) -> Lanes4 {
+    [r.z, r.error, r.radius, 0.0]
+}
+
 #[cfg(target_arch = "x86_64")]
 mod imp {
     use super::*;

@@ -245,6 +245,11 @@ pub(super) struct Fast {
     pub mu: [[f32; 4]; 64],
 }
 
+/// The largest of the finite `values` (0 if none is): a scene's scale for a rounding margin.
+fn largest_finite(values: impl IntoIterator<Item = f64>) -> f64 {
+    values.into_iter().filter(|v| v.is_finite()).fold(0.0, f64::max)
+}
+
 /// The relative slack per level of the f32 test.
 const FAST_EPS: f32 = 1.0 / 131072.0;
 
@@ -265,10 +270,8 @@ impl Fast {
         let fx = (lod.eye.x - (ox as u32) as f64 * spacing_m[0]) as f32;
         let fy = (lod.eye.y - (oy as u32) as f64 * spacing_m[1]) as f32;
         let (sx, sy) = (spacing_m[0] as f32, spacing_m[1] as f32);
-        let scale = [spacing_m[0], spacing_m[1], z_range_m[0].abs(), z_range_m[1].abs(), lod.eye.z.abs(), 1.0]
-            .into_iter()
-            .filter(|v| v.is_finite())
-            .fold(0.0, f64::max);
+        let scale =
+            largest_finite([spacing_m[0], spacing_m[1], z_range_m[0].abs(), z_range_m[1].abs(), lod.eye.z.abs(), 1.0]);
         let mu = (scale / 524_288.0) as f32;
         Fast {
             origin: [ox, ox, oy, oy],
@@ -342,17 +345,14 @@ impl<M: ErrorMetric> View<M> {
     ) -> View<M> {
         let lod = Lod::new(camera, options.tolerance_px, metric);
         let ratio = options.morph_ratio.unwrap_or(1.0);
-        let scale = [
+        let scale = largest_finite([
             extent_m[0],
             extent_m[1],
             z_range_m[0].abs(),
             z_range_m[1].abs(),
             camera.eye_in_world.abs().max_element(),
             1.0,
-        ]
-        .into_iter()
-        .filter(|v| v.is_finite())
-        .fold(0.0, f64::max);
+        ]);
         let margin_m = crate::lod::margin_for_scale(scale);
         // The grid's largest coordinate, from its extent (the origin only needs to be near it).
         let max_coord = (extent_m[0] / spacing_m[0]).max(extent_m[1] / spacing_m[1]);

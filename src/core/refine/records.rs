@@ -9,6 +9,7 @@ use std::sync::Mutex;
 use crate::error::{Error, Result};
 use crate::format::terrain::{Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
 use crate::pager::{PageObserver, Pager};
+use crate::refine::lanes::lanes_of;
 
 /// Where refinement reads vertex records from, by layout index.
 pub trait RecordSource: Sync {
@@ -17,14 +18,7 @@ pub trait RecordSource: Sync {
     /// `record(index)` as lanes `(z, error, radius, anything)`, for the walk's SSE test.
     #[inline(always)]
     fn record4(&self, index: u64) -> [f32; 4] {
-        let r = self.record(index);
-        [r.z, r.error, r.radius, 0.0]
-    }
-
-    /// [`Self::record4`] of two records.
-    #[inline(always)]
-    fn record_pair4(&self, a: u64, b: u64) -> ([f32; 4], [f32; 4]) {
-        (self.record4(a), self.record4(b))
+        lanes_of(self.record(index))
     }
 
     /// Hint that `record(index)` will be read soon (a cache prefetch); must not fault.
@@ -46,22 +40,7 @@ impl RecordSource for [Record] {
             // (12 of them, and 4 of the next) are readable; `[f32; 4]` is read unaligned.
             unsafe { self.as_ptr().add(i).cast::<[f32; 4]>().read_unaligned() }
         } else {
-            let r = self[i];
-            [r.z, r.error, r.radius, 0.0]
-        }
-    }
-
-    #[inline(always)]
-    fn record_pair4(&self, a: u64, b: u64) -> ([f32; 4], [f32; 4]) {
-        let (i, j) = (a as usize, b as usize);
-        if i.max(j) < self.len().saturating_sub(1) {
-            // SAFETY: as in `record4`, for both.
-            unsafe {
-                let p = self.as_ptr();
-                (p.add(i).cast::<[f32; 4]>().read_unaligned(), p.add(j).cast::<[f32; 4]>().read_unaligned())
-            }
-        } else {
-            (self.record4(a), self.record4(b))
+            lanes_of(self[i])
         }
     }
 
@@ -95,25 +74,25 @@ impl<'a, O: PageObserver> MappedRecords<'a, O> {
     }
 }
 
+impl<O: PageObserver> MappedRecords<'_, O> {
+    /// Reports the read of record `index` to the observer.
+    #[inline(always)]
+    fn observe(&self, index: u64) {
+        self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
+    }
+}
+
 impl<O: PageObserver> RecordSource for MappedRecords<'_, O> {
     #[inline(always)]
     fn record(&self, index: u64) -> Record {
-        self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
+        self.observe(index);
         self.records[index as usize]
     }
 
     #[inline(always)]
     fn record4(&self, index: u64) -> [f32; 4] {
-        self.observer.read(self.payload_offset + index * RECORD_BYTES as u64, RECORD_BYTES as u64);
+        self.observe(index);
         self.records.record4(index)
-    }
-
-    #[inline(always)]
-    fn record_pair4(&self, a: u64, b: u64) -> ([f32; 4], [f32; 4]) {
-        for i in [a, b] {
-            self.observer.read(self.payload_offset + i * RECORD_BYTES as u64, RECORD_BYTES as u64);
-        }
-        self.records.record_pair4(a, b)
     }
 
     #[inline(always)]
