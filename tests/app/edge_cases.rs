@@ -435,14 +435,7 @@ fn a_terrain_truncated_during_a_flight_stops_with_one_line() {
         .unwrap();
     assert!(o.status.success(), "{}", common::stderr_of(&o));
     let path = d.join("long.json");
-    let o = common::relief()
-        .args(["path", "flyover"])
-        .arg(&terrain)
-        .args(["--frames", "20000", "--out"])
-        .arg(&path)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    common::make_path("flyover", &terrain, 20000, &path);
     let mut child = common::relief()
         .arg("fly")
         .arg(&terrain)

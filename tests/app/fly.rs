@@ -68,8 +68,7 @@ fn fly_cli_writes_frames_and_stats() {
     let dir = tempfile::tempdir().unwrap();
     let file = zurich(dir.path());
     let path = dir.path().join("path.json");
-    let o = relief().args(["path", "flyover"]).arg(&file).args(["--frames", "3", "--out"]).arg(&path).output().unwrap();
-    assert!(o.status.success(), "{}", stderr_of(&o));
+    common::make_path("flyover", &file, 3, &path);
     let frames = dir.path().join("frames");
     let stats = dir.path().join("stats.json");
     let o = relief()

@@ -170,14 +170,7 @@ fn mesh_build_and_fly_commands() {
     }
     assert!(std::fs::read_dir(dir.path()).unwrap().count() == 1, "the intermediate forest is removed");
     let path = dir.path().join("orbit.json");
-    let o = common::relief()
-        .args(["path", "orbit"])
-        .arg(&out)
-        .args(["--frames", "6", "--out"])
-        .arg(&path)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    common::make_path("orbit", &out, 6, &path);
     // The paper's two modes by name, and every access by --access.
     for flags in
         [["--mode", "ext"], ["--mode", "virt"], ["--access", "map"], ["--access", "read"], ["--access", "pool"]]

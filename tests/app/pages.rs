@@ -236,14 +236,7 @@ fn pages_build_and_fly_commands() {
     assert_eq!(r["triangles"], read_mesh(&bunny).unwrap().triangles.len() as u64);
     assert_eq!(r["pages"], PageFile::open(&d("bunny.rpg")).unwrap().header().pages);
     // A path about the page file's box, then a headless flight with the figures in JSON.
-    let path = common::relief()
-        .args(["path", "flyover"])
-        .arg(d("bunny.rpg"))
-        .args(["--frames", "12", "--out"])
-        .arg(d("p.json"))
-        .output()
-        .unwrap();
-    assert!(path.status.success(), "{}", common::stderr_of(&path));
+    common::make_path("flyover", &d("bunny.rpg"), 12, &d("p.json"));
     let flown = common::relief()
         .args(["pages", "fly"])
         .arg(d("bunny.rpg"))

@@ -42,14 +42,7 @@ fn a_headless_flight_over_a_served_terrain_never_waits_and_ends_on_the_local_str
     let local = zurich(dir.path());
     let server = serve(&local, 20);
     let path = dir.path().join("path.json");
-    let o = relief(dir.path())
-        .args(["path", "flyover"])
-        .arg(&local)
-        .args(["--frames", "40", "--out"])
-        .arg(&path)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    common::make_path("flyover", &local, 40, &path);
     // The fly-over's middle view, held for 40 frames: how many round trips the first complete
     // frame waits for then depends on the data alone, not on how far the camera got meanwhile.
     let flyover: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
@@ -92,14 +85,7 @@ fn info_and_the_fault_experiment_read_a_served_terrain_like_the_local_file() {
     }
     assert_eq!(here, there);
     let path = dir.path().join("path.json");
-    let o = relief(dir.path())
-        .args(["path", "flyover"])
-        .arg(&local)
-        .args(["--frames", "8", "--out"])
-        .arg(&path)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    common::make_path("flyover", &local, 8, &path);
     let layouts = |input: &str, cache: &str| {
         let mut c = relief(dir.path());
         c.args(["layouts", input, "--memory", "1/16", "--layouts", "interleaved,row-major", "--quiet", "--json"])

@@ -136,6 +136,19 @@ pub fn stderr_of(o: &std::process::Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
+/// Runs `relief path KIND FILE --frames FRAMES --out OUT` (a camera path about FILE's box) and
+/// asserts that it succeeded.
+pub fn make_path(kind: &str, file: &Path, frames: u32, out: &Path) {
+    let o = relief()
+        .args(["path", kind])
+        .arg(file)
+        .args(["--frames", &frames.to_string(), "--out"])
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr_of(&o));
+}
+
 /// Runs `relief ARGS… --width 480 --height 300 …` in a window under Xvfb and presses keys: R
 /// twice (records a path), F (freeze) and T (wireframe), P (a screenshot), then Escape, which must
 /// close it. Asserts that it ran cleanly, that the recorded path loads back with at least two
