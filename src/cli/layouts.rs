@@ -10,7 +10,7 @@ use relief::format::terrain::{TerrainFile, RECORD_BYTES};
 use relief::layout::LayoutKind;
 use relief::plot::plot_report;
 
-use super::{check_output_file, fmt_bytes, parse_bytes, parse_memory, print_json, progress, ImageArgs};
+use super::{check_output_file, fmt_bytes, parse_bytes, parse_memory, print_json, progress, DeviceArgs, ImageArgs};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -49,6 +49,10 @@ pub struct Args {
     /// they allocate and page in (needs root and a v1 memory controller; says why not).
     #[arg(long, value_name = "BYTES", requires = "os")]
     pub os_cap: Option<String>,
+    /// With --os: the cold runs read each file through an emulated device (its time per frame
+    /// is then reported as "os ms/frame").
+    #[command(flatten)]
+    pub device: DeviceArgs,
     /// Where converted layouts are kept (default ~/.cache/relief/layouts).
     #[arg(long, value_name = "DIR")]
     pub cache_dir: Option<PathBuf>,
@@ -64,6 +68,9 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    if a.device.device_latency.is_some() && !a.os {
+        anyhow::bail!("--device-latency needs --os: only the cold OS runs read their files (the model runs count)");
+    }
     let os_cap_bytes = a.os_cap.as_deref().map(|c| parse_bytes("--os-cap", c)).transpose()?;
     let page_bytes = parse_bytes("--page-size", &a.page_size)?;
     let tolerances_px = a
@@ -137,6 +144,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         fov_x_deg: fov,
         os: a.os,
         os_cap_bytes,
+        device: a.device.spec()?,
         progress: progress(a.quiet),
     };
     let report = run_layouts(&a.input, &cameras, &cache_dir, &options)?;
@@ -177,7 +185,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         "×first",
         "ms/frame",
         "tris/frame",
-        if a.os { "  os major  os read MiB" } else { "" }
+        if a.os { "  os major  os read MiB  os ms/frame" } else { "" }
     );
     for r in &report.runs {
         println!(
@@ -196,9 +204,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             r.update_ms_per_frame,
             r.triangles_per_frame_mean,
             r.os.as_ref().map_or(String::new(), |o| format!(
-                "  {:>8} {:>12.1}",
+                "  {:>8} {:>12.1} {:>12.2}",
                 o.major,
-                o.read_bytes as f64 / 1048576.0
+                o.device.map_or(o.read_bytes, |d| d.bytes) as f64 / 1048576.0,
+                o.ms_per_frame_mean
             ))
         );
     }

@@ -16,7 +16,9 @@ use relief::metanode::source::NavSource;
 use relief::metanode::VdtMetric;
 use relief::pager::{Access, MemoryCap};
 
-use super::{check_output_file, fmt_bytes, parse_bytes, parse_memory, print_json, progress, up_parser, FlyArgs};
+use super::{
+    check_output_file, fmt_bytes, parse_bytes, parse_memory, print_json, progress, up_parser, DeviceArgs, FlyArgs,
+};
 
 // One value, parsed once: the variants' size does not matter.
 #[allow(clippy::large_enum_variant)]
@@ -72,6 +74,8 @@ pub enum Command {
         /// active node, the blocks its split or its parent's collapse would read.
         #[arg(long, value_enum, default_value = "frontier")]
         prefetch: PrefetchArg,
+        #[command(flatten)]
+        device: DeviceArgs,
         #[command(flatten)]
         mesh: MeshViewArgs,
         #[command(flatten)]
@@ -194,7 +198,8 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
             let mut source = StaticMesh::new(&m)?;
             super::show::mesh(&mut source, &input, flight, mesh.up, mesh.tolerance, &fly)
         }
-        Command::Fly { file, mode, access, memory, cap, cold, prefetch, mesh, fly } => {
+        Command::Fly { file, mode, access, memory, cap, cold, prefetch, device, mesh, fly } => {
+            let device = device.spec()?;
             let flight = fly.check()?;
             let cap_bytes = cap.as_deref().map(|c| parse_bytes("--cap", c)).transpose()?;
             let access = match (mode, access.as_deref()) {
@@ -205,7 +210,7 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
                     Access::Pool { bytes: parse_memory("--memory", &memory, tree)? }
                 }
             };
-            let meta = MetaNodeFile::open_with(&file, access)?;
+            let meta = MetaNodeFile::open_on(&file, access, device)?;
             if cold {
                 meta.start_cold()?;
             }

@@ -198,6 +198,36 @@ impl GpuArgs {
     }
 }
 
+/// An emulated storage device under the file read (see `relief::pager::device`).
+#[derive(Args, Clone, Debug)]
+pub struct DeviceArgs {
+    /// Serve the file through an emulated device taking MS milliseconds a read request (a FUSE
+    /// file system of relief's own; needs /dev/fuse and root). Every request the kernel sends is
+    /// charged: page faults (map access), preads (read), the pool's loads; what the page cache
+    /// holds costs nothing. Published figures: NVMe ~0.02, a cloud block volume ~1, a 7200 rpm
+    /// disk ~8 (random 4 KiB), an object store's first byte ~30.
+    #[arg(long, value_name = "MS", allow_negative_numbers = true)]
+    pub device_latency: Option<f64>,
+    /// Requests the emulated device serves at once (1: a disk's single arm; an SSD or an object
+    /// store serve many).
+    #[arg(long, value_name = "N", default_value_t = 1, requires = "device_latency")]
+    pub device_queue_depth: u32,
+    /// Cap the emulated device's transfer rate at MB/s (10⁶ bytes a second): a request of B bytes
+    /// takes latency + B / rate.
+    #[arg(long, value_name = "MB/s", requires = "device_latency")]
+    pub device_mb_s: Option<f64>,
+}
+
+impl DeviceArgs {
+    /// The device asked for, checked; `None` without --device-latency.
+    pub fn spec(&self) -> anyhow::Result<Option<relief::pager::device::DeviceSpec>> {
+        self.device_latency
+            .map(|ms| relief::pager::device::DeviceSpec::new(ms, self.device_queue_depth, self.device_mb_s))
+            .transpose()
+            .map_err(|e| anyhow::anyhow!("--device-latency: {e}"))
+    }
+}
+
 /// Flying in a window or headless along a path: what every `fly` and `view` command shares.
 #[derive(Args)]
 pub struct FlyArgs {

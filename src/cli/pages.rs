@@ -12,7 +12,7 @@ use relief::format::pagefile::{PageFile, PageLayout};
 use relief::format::{sniff, FileKind};
 use relief::pager::{Access, MemoryCap};
 
-use super::{check_output_file, fmt_bytes, parse_bytes, print_json, progress, AccessArgs, FlyArgs};
+use super::{check_output_file, fmt_bytes, parse_bytes, print_json, progress, AccessArgs, DeviceArgs, FlyArgs};
 
 // One value, parsed once: the variants' size does not matter.
 #[allow(clippy::large_enum_variant)]
@@ -75,6 +75,8 @@ pub enum Command {
         #[command(flatten)]
         access: AccessArgs,
         #[command(flatten)]
+        device: DeviceArgs,
+        #[command(flatten)]
         mesh: super::mesh::MeshViewArgs,
         #[command(flatten)]
         fly: FlyArgs,
@@ -123,7 +125,8 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
             );
             Ok(ExitCode::SUCCESS)
         }
-        Command::Fly { file, cold, cold_frames, cap, no_backface_cull, access, mesh, fly } => {
+        Command::Fly { file, cold, cold_frames, cap, no_backface_cull, access, device, mesh, fly } => {
+            let device = device.spec()?;
             let cold = cold || cold_frames;
             let cap_bytes = cap.as_deref().map(|c| parse_bytes("--cap", c)).transpose()?;
             let flight = fly.check()?;
@@ -132,7 +135,7 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
                 let h = PageFile::open(&file)?.header().clone();
                 Ok(h.pages * h.page_bytes as u64)
             })?;
-            let pages = PageFile::open_with(&file, access)?;
+            let pages = PageFile::open_on(&file, access, device)?;
             if cold {
                 pages.start_cold()?;
             }

@@ -36,6 +36,7 @@ use crate::metanode::blocking::BlockingOptions;
 use crate::metanode::build::BuildOptions;
 use crate::metanode::navigate::{NavOptions, Navigator, PagedStore};
 use crate::metanode::VdtMetric;
+use crate::pager::device::{DeviceSpec, DeviceStats};
 use crate::pager::{Access, Granules, LruCache, LruTrace, MemoryCap, OsFaults, PageGeometry};
 use crate::pager::{PageObserver, Pager};
 use crate::preprocess::convert::{convert, relayout, ConvertOptions};
@@ -89,6 +90,9 @@ pub struct LayoutsOptions {
     pub os: bool,
     /// Run the OS runs under a cgroup memory limit of this many bytes (see `pager::MemoryCap`).
     pub os_cap_bytes: Option<u64>,
+    /// Run the OS runs with each file served through this emulated device (see
+    /// [`crate::pager::device`]); their times are then the device's.
+    pub device: Option<DeviceSpec>,
     pub progress: Progress,
 }
 
@@ -102,6 +106,14 @@ pub struct OsFaultCounts {
     pub read_bytes: u64,
     /// Major faults of each frame.
     pub major_per_frame: Vec<u64>,
+    /// Each frame's time, ms: the refinement, adaptation or fetch and, for the pool, waiting for
+    /// its reads; with the file cold and its faults and reads served by the storage (or the
+    /// emulated device).
+    pub ms_per_frame_mean: f64,
+    pub ms_per_frame_median: f64,
+    pub ms_per_frame: Vec<f64>,
+    /// What the emulated device served over the frames (`null` without one).
+    pub device: Option<DeviceStats>,
 }
 
 /// One backend, layout and access at one tolerance.
@@ -403,34 +415,42 @@ fn run_os(
     access: Access,
     cameras: &[Camera],
     tolerance_px: f64,
+    device: Option<DeviceSpec>,
 ) -> Result<OsFaultCounts> {
     let os = OsFaults::start();
     let mut per_frame = Vec::with_capacity(cameras.len());
+    let mut ms_per_frame = Vec::with_capacity(cameras.len());
     let mut read_bytes = 0;
-    let mut frame = |f: crate::pager::Faults| {
+    let mut frame = |f: crate::pager::Faults, started: Instant| {
+        ms_per_frame.push(started.elapsed().as_secs_f64() * 1e3);
         per_frame.push(f.faults);
         read_bytes += f.bytes_read;
     };
-    match backend {
+    let served = match backend {
         Backend::Terrain => {
-            let terrain = TerrainFile::open(path)?;
+            let terrain = TerrainFile::open_on(path, Access::Map, device)?;
             terrain.start_cold()?;
             let options = RefineOptions { tolerance_px, ..Default::default() };
             let (mut refiner, mut strip) = (Refiner::new(1)?, Strip::new());
             os.take();
+            let first = terrain.pager().device_or_zero();
             for camera in cameras {
                 crate::sys::cancel::check()?;
+                let t = Instant::now();
                 refiner.refine_file(&terrain, camera, &options, &mut strip)?;
-                frame(os.take());
+                frame(os.take(), t);
             }
+            terrain.pager().device().map(|d| d.since(first))
         }
         Backend::MetaNode => {
-            let file = MetaNodeFile::open_with(path, access)?;
+            let file = MetaNodeFile::open_on(path, access, device)?;
             file.start_cold()?;
             let mut nav = Navigator::new(&file, PagedStore::new(&file), nav_options())?;
             os.take();
+            let first = file.pager().device_or_zero();
             for camera in cameras {
                 crate::sys::cancel::check()?;
+                let t = Instant::now();
                 if let Some(p) = file.pager().pool() {
                     p.hold(true);
                 }
@@ -439,28 +459,37 @@ fn run_os(
                     p.hold(false);
                     p.drain()?;
                 }
-                frame(os.take());
+                frame(os.take(), t);
             }
+            file.pager().device().map(|d| d.since(first))
         }
         Backend::Pages => {
-            let file = PageFile::open_with(path, access)?;
+            let file = PageFile::open_on(path, access, device)?;
             file.start_cold()?;
+            let first = file.pager().device_or_zero();
             let mut source = PageSource::new(file, FetchOptions::default());
             os.take();
             for camera in cameras {
                 crate::sys::cancel::check()?;
+                let t = Instant::now();
                 source.update(camera, tolerance_px)?;
-                frame(os.take());
+                frame(os.take(), t);
             }
+            source.file().pager().device().map(|d| d.since(first))
         }
-    }
+    };
     let major: u64 = per_frame.iter().sum();
+    let n = cameras.len().max(1) as f64;
     Ok(OsFaultCounts {
         major,
-        major_per_frame_mean: major as f64 / cameras.len().max(1) as f64,
+        major_per_frame_mean: major as f64 / n,
         major_per_frame_max: per_frame.iter().copied().max().unwrap_or(0),
         read_bytes,
         major_per_frame: per_frame,
+        ms_per_frame_mean: ms_per_frame.iter().sum::<f64>() / n,
+        ms_per_frame_median: crate::flight::frame::Summary::of(ms_per_frame.iter().copied()).median,
+        ms_per_frame,
+        device: served,
     })
 }
 
@@ -562,6 +591,11 @@ pub fn run_layouts(
                 Backend::Pages => run_pages(path, cameras, tolerance, m, geometry)?,
             };
             if options.os {
+                if options.device.is_some() {
+                    // The device's backing file is read into the page cache before the cap, so
+                    // that it is not charged to the capped run (a device's storage is not memory).
+                    crate::pager::device::warm_path(path)?;
+                }
                 let cap = match options.os_cap_bytes.map(MemoryCap::apply).transpose() {
                     Ok(c) => Some(c),
                     Err(e) => {
@@ -570,7 +604,7 @@ pub fn run_layouts(
                     }
                 };
                 if let Some(cap) = cap {
-                    let measured = run_os(*backend, path, *access, cameras, tolerance);
+                    let measured = run_os(*backend, path, *access, cameras, tolerance, options.device);
                     drop(cap);
                     match measured {
                         Ok(os) => {
@@ -579,6 +613,14 @@ pub fn run_layouts(
                                 let cap = match options.os_cap_bytes {
                                     Some(b) => format!("under a cgroup v1 memory cap of {b} bytes"),
                                     None => "without a memory cap".into(),
+                                } + &match options.device {
+                                    Some(d) => format!(
+                                        "; each file served through an emulated device{} (its reads are \
+                                         the device's requests, not in /proc/self/io)",
+                                        crate::pager::device::describe(Some(d))
+                                            .trim_start_matches(", on an emulated device")
+                                    ),
+                                    None => String::new(),
                                 };
                                 format!(
                                     "OS counts: each file opened afresh, readahead turned off (MADV_RANDOM, \

@@ -12,6 +12,7 @@ mod json;
 
 mod cli;
 mod convert;
+mod device;
 mod edge_cases;
 mod flight;
 mod fly;

@@ -53,6 +53,7 @@ pub struct PageSource {
     buf: BlockBuf,
     head_page: u64,
     reads: ReadStats,
+    device: crate::pager::device::DeviceStats,
     shown: bool,
 }
 
@@ -60,6 +61,7 @@ impl PageSource {
     pub fn new(file: PageFile, options: FetchOptions) -> PageSource {
         PageSource {
             reads: file.pager().reads(),
+            device: file.pager().device_or_zero(),
             file,
             options,
             triangles: Vec::new(),
@@ -156,7 +158,7 @@ impl FrameSource for PageSource {
             }
         }
         std::mem::swap(&mut self.pages, &mut self.next_pages);
-        let reads = self.file.pager().reads();
+        let (reads, device) = (self.file.pager().reads(), self.file.pager().device_or_zero());
         let stats = FrameStats {
             update_ms: Some(started.elapsed().as_secs_f64() * 1e3),
             changed: gained + lost > 0 || !self.shown,
@@ -169,9 +171,12 @@ impl FrameSource for PageSource {
             pages_requested: self.pages.len() as u64,
             seek_pages: seek,
             read_ms: read_s * 1e3,
+            device_requests: device.requests - self.device.requests,
+            device_ms: (device.device_s - self.device.device_s) * 1e3,
             ..FrameStats::default()
         };
         self.reads = reads;
+        self.device = device;
         self.shown = true;
         Ok(stats)
     }
@@ -192,6 +197,6 @@ impl FrameSource for PageSource {
             h.pages,
             h.page_bytes,
             self.file.pager().access().name()
-        )
+        ) + &crate::pager::device::describe(self.file.pager().device_spec())
     }
 }

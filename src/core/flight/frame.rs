@@ -101,6 +101,11 @@ pub struct FrameStats {
     pub pages_requested: u64,
     pub seek_pages: u64,
     pub read_ms: f64,
+    /// Requests an emulated device under the file served during this update (the pool's
+    /// background reads included) and their service time, ms (0 without one; see
+    /// [`crate::pager::device`]).
+    pub device_requests: u64,
+    pub device_ms: f64,
     /// Camera updates between this frame's camera and the one its geometry was made for.
     pub lag_frames: u64,
     /// A remote terrain: whether the drawn geometry is coarser than wanted (records or heights
@@ -267,6 +272,8 @@ pub struct FlightSummary {
     pub pages_requested: Summary,
     pub seek_pages: Summary,
     pub read_ms: Summary,
+    pub device_requests: Summary,
+    pub device_ms: Summary,
     pub lag_frames: Summary,
     pub major_faults: Summary,
     pub minor_faults: Summary,
@@ -335,6 +342,8 @@ impl FlightSummary {
             pages_requested: s(|f| f.stats.pages_requested as f64),
             seek_pages: s(|f| f.stats.seek_pages as f64),
             read_ms: s(|f| f.stats.read_ms),
+            device_requests: s(|f| f.stats.device_requests as f64),
+            device_ms: s(|f| f.stats.device_ms),
             lag_frames: s(|f| f.stats.lag_frames as f64),
             major_faults: s(|f| f.major_faults as f64),
             minor_faults: s(|f| f.minor_faults as f64),

@@ -277,7 +277,17 @@ impl MetaNodeFile {
     /// DATA, sizes within the holder size, tree links in range). Blocks are validated when read
     /// ([`BlockView::parse`]).
     pub fn open_with(path: &Path, access: Access) -> Result<MetaNodeFile> {
-        let source = source::open(path, access.source_kind())?;
+        MetaNodeFile::open_on(path, access, None)
+    }
+
+    /// [`Self::open_with`], the file served through an emulated device when `device` is given
+    /// ([`crate::pager::device`]).
+    pub fn open_on(
+        path: &Path,
+        access: Access,
+        device: Option<crate::pager::device::DeviceSpec>,
+    ) -> Result<MetaNodeFile> {
+        let source = source::open_on(path, access.source_kind(), device)?;
         let header: MetaHeader = read_header(&*source)?;
         let bad = |what: String| corrupt(path, FileKind::MetaNode, what);
         let mut table = vec![0u8; (header.metanodes * MNT_ENTRY_BYTES) as usize];

@@ -333,7 +333,13 @@ impl PageFile {
     /// checksum, section sizes against the file's length, the tables' checksum, every directory
     /// entry and k-d node. Pages are validated when decoded ([`PageView::parse`]).
     pub fn open_with(path: &Path, access: Access) -> Result<PageFile> {
-        let source = source::open(path, access.source_kind())?;
+        PageFile::open_on(path, access, None)
+    }
+
+    /// [`Self::open_with`], the file served through an emulated device when `device` is given
+    /// ([`crate::pager::device`]).
+    pub fn open_on(path: &Path, access: Access, device: Option<crate::pager::device::DeviceSpec>) -> Result<PageFile> {
+        let source = source::open_on(path, access.source_kind(), device)?;
         let header: PageHeader = read_header(&*source)?;
         let bad = |what: String| corrupt(path, FileKind::Pages, what);
         let mut tables = vec![0u8; (header.refs_offset + header.kd_refs * 4) as usize - HEADER_BYTES];

@@ -254,7 +254,17 @@ impl TerrainFile {
     ///
     /// A remote location (`http(s)://`, `s3://`) cannot be mapped: map access reads it instead.
     pub fn open_with(path: &Path, access: Access) -> Result<TerrainFile> {
-        let source = source::open(path, access.source_kind())?;
+        TerrainFile::open_on(path, access, None)
+    }
+
+    /// [`Self::open_with`], the file served through an emulated device when `device` is given
+    /// ([`crate::pager::device`]).
+    pub fn open_on(
+        path: &Path,
+        access: Access,
+        device: Option<crate::pager::device::DeviceSpec>,
+    ) -> Result<TerrainFile> {
+        let source = source::open_on(path, access.source_kind(), device)?;
         TerrainFile::open_source(path, source, access)
     }
 

@@ -8,6 +8,7 @@ use crate::error::Result;
 use crate::flight::frame::{Frame, FrameSource, FrameStats};
 use crate::format::metanode::MetaNodeFile;
 use crate::mesh::Bounds;
+use crate::pager::device::DeviceStats;
 use crate::pager::{Access, ReadStats};
 
 /// A [`Navigator`] over a meta-node file's pager, flown frame by frame.
@@ -15,6 +16,7 @@ pub struct NavSource<'a> {
     pub navigator: Navigator<PagedStore<'a>>,
     file: &'a MetaNodeFile,
     reads: ReadStats,
+    device: DeviceStats,
     second_chance_hits: u64,
     shown: bool,
 }
@@ -23,7 +25,8 @@ impl<'a> NavSource<'a> {
     pub fn new(navigator: Navigator<PagedStore<'a>>) -> NavSource<'a> {
         let file = navigator.store().file();
         let second_chance_hits = navigator.store().second_chance_hits();
-        NavSource { reads: file.pager().reads(), file, navigator, second_chance_hits, shown: false }
+        let (reads, device) = (file.pager().reads(), file.pager().device_or_zero());
+        NavSource { reads, device, file, navigator, second_chance_hits, shown: false }
     }
 }
 
@@ -32,7 +35,7 @@ impl FrameSource for NavSource<'_> {
         let started = Instant::now();
         let s = self.navigator.update(camera, tolerance_px)?;
         let update_ms = started.elapsed().as_secs_f64() * 1e3;
-        let reads = self.file.pager().reads();
+        let (reads, device) = (self.file.pager().reads(), self.file.pager().device_or_zero());
         let second = self.navigator.store().second_chance_hits();
         let stats = FrameStats {
             update_ms: Some(update_ms),
@@ -44,10 +47,13 @@ impl FrameSource for NavSource<'_> {
             second_chance_hits: second - self.second_chance_hits,
             pages_read: reads.pages - self.reads.pages,
             bytes_read: reads.bytes - self.reads.bytes,
+            device_requests: device.requests - self.device.requests,
+            device_ms: (device.device_s - self.device.device_s) * 1e3,
             ..FrameStats::default()
         };
         self.shown = true;
         self.reads = reads;
+        self.device = device;
         self.second_chance_hits = second;
         Ok(stats)
     }
@@ -62,7 +68,7 @@ impl FrameSource for NavSource<'_> {
 
     fn describe(&self) -> String {
         let pager = self.file.pager();
-        match (pager.access(), pager.pool()) {
+        let what: String = match (pager.access(), pager.pool()) {
             (Access::Pool { .. }, Some(pool)) => format!(
                 "meta-node trees, pool access (ext), {} holders of {} B",
                 pool.holders(),
@@ -70,6 +76,7 @@ impl FrameSource for NavSource<'_> {
             ),
             (Access::Map, _) => "meta-node trees, map access (virt)".into(),
             (access, _) => format!("meta-node trees, {} access", access.name()),
-        }
+        };
+        what + &crate::pager::device::describe(pager.device_spec())
     }
 }

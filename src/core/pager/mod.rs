@@ -19,6 +19,7 @@
 //! is generic over the observer ([`crate::refine::MappedRecords`]), so the plain path pays
 //! nothing for the experiments.
 
+pub mod device;
 pub mod lru;
 pub mod observer;
 pub mod os;
@@ -492,6 +493,21 @@ impl Pager {
             Mode::Read(r) => r.get(),
             Mode::Pool(p) => p.loader().reads.get(),
         }
+    }
+
+    /// What the emulated device under this pager's file has served, if it is on one.
+    pub fn device(&self) -> Option<device::DeviceStats> {
+        self.source.device().map(|d| d.stats())
+    }
+
+    /// [`Self::device`], zero without a device (for per-frame differences).
+    pub fn device_or_zero(&self) -> device::DeviceStats {
+        self.device().unwrap_or_default()
+    }
+
+    /// The emulated device under this pager's file, if it is on one.
+    pub fn device_spec(&self) -> Option<device::DeviceSpec> {
+        self.source.device().map(|d| d.spec())
     }
 
     /// No readahead (see [`Source::advise_random`]).

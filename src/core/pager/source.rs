@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 
 use memmap2::Mmap;
 
+use super::device::{DeviceMount, DeviceSpec};
 use crate::error::{Error, IoContext, Result};
 
 /// The most bytes relief maps at once: 128 TiB, the user address space of x86-64 and AArch64
@@ -55,11 +56,70 @@ pub trait Source: Send + Sync {
     fn remote(&self) -> Option<&super::remote::RemoteFile> {
         None
     }
+    /// The emulated device this source reads through, where it has one.
+    fn device(&self) -> Option<&DeviceMount> {
+        None
+    }
+}
+
+/// A source reading a device's served copy of a file (see [`open_on`]).
+struct OnDevice {
+    // Declared first, so dropped first: the served file is closed (and unmapped) before the
+    // device's file system is unmounted.
+    inner: Box<dyn Source>,
+    mount: DeviceMount,
+}
+
+impl Source for OnDevice {
+    fn path(&self) -> &Path {
+        self.inner.path()
+    }
+    fn len(&self) -> u64 {
+        self.inner.len()
+    }
+    fn kind(&self) -> SourceKind {
+        self.inner.kind()
+    }
+    fn read_at(&self, offset: u64, buf: &mut [u8]) -> Result<()> {
+        self.inner.read_at(offset, buf)
+    }
+    fn mapped(&self) -> Option<&[u8]> {
+        self.inner.mapped()
+    }
+    fn advise_random(&self) -> Result<()> {
+        self.inner.advise_random()
+    }
+    fn evict(&self) -> Result<()> {
+        self.inner.evict()
+    }
+    fn device(&self) -> Option<&DeviceMount> {
+        Some(&self.mount)
+    }
 }
 
 /// Opens `path` as a source of the given kind. A remote location (`http(s)://`, `s3://`, see
 /// [`super::remote`]) is read with range requests through its local cache, whatever the kind.
 pub fn open(path: &Path, kind: SourceKind) -> Result<std::sync::Arc<dyn Source>> {
+    open_on(path, kind, None)
+}
+
+/// [`open`], a local file served through an emulated device when `device` is given (see
+/// [`super::device`]): mapped or read as asked, from the device's served copy.
+pub fn open_on(path: &Path, kind: SourceKind, device: Option<DeviceSpec>) -> Result<std::sync::Arc<dyn Source>> {
+    if let Some(spec) = device {
+        if super::remote::is_remote(path) {
+            return Err(Error::InvalidArgument(format!(
+                "{}: an emulated device is for local files (a remote one has its own latency)",
+                path.display()
+            )));
+        }
+        let mount = DeviceMount::new(path, spec)?;
+        let inner: Box<dyn Source> = match kind {
+            SourceKind::Map => Box::new(MappedFile::open_as(mount.path(), path)?),
+            SourceKind::Read => Box::new(ReadFile::open_as(mount.path(), path)?),
+        };
+        return Ok(std::sync::Arc::new(OnDevice { inner, mount }));
+    }
     if super::remote::is_remote(path) {
         let location = path.to_string_lossy();
         return Ok(std::sync::Arc::new(super::remote::RemoteFile::open(
@@ -111,7 +171,12 @@ impl MappedFile {
     /// reader validates the sizes and offsets it uses against [`Source::len`], so well-formed
     /// reads stay inside the map.
     pub fn open(path: &Path) -> Result<MappedFile> {
-        let file = File::open(path).at(path)?;
+        MappedFile::open_as(path, path)
+    }
+
+    /// [`Self::open`] of `actual`, named `path` in errors (a device's served copy of `path`).
+    pub fn open_as(actual: &Path, path: &Path) -> Result<MappedFile> {
+        let file = File::open(actual).at(path)?;
         let len = file.metadata().at(path)?.len();
         // SAFETY: see the function's documentation above.
         let map = unsafe { Mmap::map(&file) }.at(path)?;
@@ -175,7 +240,12 @@ pub struct ReadFile {
 
 impl ReadFile {
     pub fn open(path: &Path) -> Result<ReadFile> {
-        let file = File::open(path).at(path)?;
+        ReadFile::open_as(path, path)
+    }
+
+    /// [`Self::open`] of `actual`, named `path` in errors (a device's served copy of `path`).
+    pub fn open_as(actual: &Path, path: &Path) -> Result<ReadFile> {
+        let file = File::open(actual).at(path)?;
         let len = file.metadata().at(path)?.len();
         Ok(ReadFile { path: path.to_path_buf(), file, len })
     }

@@ -1,0 +1,473 @@
+//! An emulated storage device under a file (ARCHITECTURE.md, "Device emulation"): the file is
+//! served through a FUSE file system of relief's own whose every read request waits as a device
+//! of the given latency, queue depth and throughput would before it is answered.
+//!
+//! Why FUSE: the kernel then issues the requests exactly as for a real disk, for every access
+//! (page faults of a map, `pread`s of the read access and the pool), through its own page cache,
+//! readahead and memory limits; only the time a request takes is ours. So one mechanism charges
+//! one delay per request the kernel actually sends, and major fault counts stay the OS's own.
+//!
+//! A request's device time is `latency + bytes / throughput`, and never less than the read of the
+//! backing file it needs (which is kept warm in the OS page cache, so that it costs microseconds):
+//! the emulation cannot be faster than the storage it runs on, and says so in its figures
+//! ([`DeviceStats::slow_backing`]). At most `queue_depth` requests are served at once (one event
+//! loop thread per slot); the others wait in the kernel's queue, as on a device.
+
+use std::ffi::OsStr;
+use std::fs::File;
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime};
+
+use fuser::{
+    Config, Errno, FileAttr, FileHandle, FileType, Filesystem, FopenFlags, INodeNo, LockOwner, MountOption, OpenFlags,
+    ReplyAttr, ReplyData, ReplyEntry, ReplyOpen, Request,
+};
+use serde::Serialize;
+
+use crate::error::{Error, IoContext, Result};
+
+/// The most requests served at once that relief emulates (one thread each).
+pub const MAX_QUEUE_DEPTH: u32 = 64;
+
+/// What the emulated device charges a request.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct DeviceSpec {
+    /// Time from a request to its first byte, milliseconds.
+    pub latency_ms: f64,
+    /// Requests served at once (a 7200 rpm disk: 1; an SSD or an object store: many).
+    pub queue_depth: u32,
+    /// Transfer rate in bytes per second, if capped (None: the latency alone).
+    pub bytes_per_s: Option<f64>,
+}
+
+impl DeviceSpec {
+    /// A device of `latency_ms` per request, queue depth `queue_depth`, optionally capped at
+    /// `mb_per_s` (10⁶ bytes a second); refuses values that are not finite and positive.
+    pub fn new(latency_ms: f64, queue_depth: u32, mb_per_s: Option<f64>) -> Result<DeviceSpec> {
+        if !(0.0..=60_000.0).contains(&latency_ms) {
+            return Err(Error::InvalidArgument(format!(
+                "device latency must be between 0 and 60000 ms, got {latency_ms}"
+            )));
+        }
+        if queue_depth == 0 || queue_depth > MAX_QUEUE_DEPTH {
+            return Err(Error::InvalidArgument(format!(
+                "device queue depth must be 1 to {MAX_QUEUE_DEPTH}, got {queue_depth}"
+            )));
+        }
+        if let Some(r) = mb_per_s {
+            if !(r.is_finite() && r > 0.0) {
+                return Err(Error::InvalidArgument(format!("device throughput must be positive MB/s, got {r}")));
+            }
+        }
+        Ok(DeviceSpec { latency_ms, queue_depth, bytes_per_s: mb_per_s.map(|r| r * 1e6) })
+    }
+
+    /// The time a request for `bytes` takes on this device.
+    pub fn service_time(&self, bytes: u64) -> Duration {
+        let s = self.latency_ms * 1e-3 + self.bytes_per_s.map_or(0.0, |r| bytes as f64 / r);
+        Duration::from_secs_f64(s)
+    }
+}
+
+/// ", on an emulated device (…)" for a source's description, or nothing without one.
+pub fn describe(spec: Option<DeviceSpec>) -> String {
+    match spec {
+        None => String::new(),
+        Some(s) => format!(
+            ", on an emulated device ({} ms a request, queue depth {}{})",
+            s.latency_ms,
+            s.queue_depth,
+            s.bytes_per_s.map_or(String::new(), |r| format!(", {} MB/s", r / 1e6))
+        ),
+    }
+}
+
+/// What a device has served so far.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct DeviceStats {
+    /// Read requests the kernel sent.
+    pub requests: u64,
+    /// Bytes they asked for.
+    pub bytes: u64,
+    /// Sum of the requests' service times, seconds (overlapping ones each counted).
+    pub device_s: f64,
+    /// Requests whose backing read alone took longer than the emulated service time (the
+    /// emulation was slower than asked for by that much).
+    pub slow_backing: u64,
+}
+
+impl DeviceStats {
+    /// What was served since `earlier` (a snapshot of the same device).
+    pub fn since(&self, earlier: DeviceStats) -> DeviceStats {
+        DeviceStats {
+            requests: self.requests - earlier.requests,
+            bytes: self.bytes - earlier.bytes,
+            device_s: self.device_s - earlier.device_s,
+            slow_backing: self.slow_backing - earlier.slow_backing,
+        }
+    }
+}
+
+#[derive(Default)]
+struct Counters {
+    requests: AtomicU64,
+    bytes: AtomicU64,
+    device_ns: AtomicU64,
+    slow_backing: AtomicU64,
+}
+
+impl Counters {
+    fn get(&self) -> DeviceStats {
+        DeviceStats {
+            requests: self.requests.load(Ordering::Relaxed),
+            bytes: self.bytes.load(Ordering::Relaxed),
+            device_s: self.device_ns.load(Ordering::Relaxed) as f64 * 1e-9,
+            slow_backing: self.slow_backing.load(Ordering::Relaxed),
+        }
+    }
+}
+
+const ROOT: u64 = 1;
+const FILE: u64 = 2;
+/// How long the kernel may keep the names and attributes: the file never changes while mounted.
+const TTL: Duration = Duration::from_secs(3600);
+
+/// The file system: one directory holding one read-only file, the backing file's bytes.
+struct DeviceFs {
+    backing: File,
+    name: std::ffi::OsString,
+    len: u64,
+    spec: DeviceSpec,
+    counters: Arc<Counters>,
+    mtime: SystemTime,
+}
+
+impl DeviceFs {
+    fn attr(&self, ino: u64) -> FileAttr {
+        let (kind, perm, size, nlink) =
+            if ino == ROOT { (FileType::Directory, 0o555, 0, 2) } else { (FileType::RegularFile, 0o444, self.len, 1) };
+        FileAttr {
+            ino: INodeNo(ino),
+            size,
+            blocks: size.div_ceil(512),
+            atime: self.mtime,
+            mtime: self.mtime,
+            ctime: self.mtime,
+            crtime: self.mtime,
+            kind,
+            perm,
+            nlink,
+            // SAFETY (no memory involved): getuid/getgid cannot fail.
+            uid: unsafe { libc::getuid() },
+            gid: unsafe { libc::getgid() },
+            rdev: 0,
+            blksize: 4096,
+            flags: 0,
+        }
+    }
+}
+
+impl Filesystem for DeviceFs {
+    fn lookup(&self, _req: &Request, parent: INodeNo, name: &OsStr, reply: ReplyEntry) {
+        if parent.0 == ROOT && name == self.name.as_os_str() {
+            reply.entry(&TTL, &self.attr(FILE), fuser::Generation(0));
+        } else {
+            reply.error(Errno::ENOENT);
+        }
+    }
+
+    fn getattr(&self, _req: &Request, ino: INodeNo, _fh: Option<FileHandle>, reply: ReplyAttr) {
+        match ino.0 {
+            ROOT | FILE => reply.attr(&TTL, &self.attr(ino.0)),
+            _ => reply.error(Errno::ENOENT),
+        }
+    }
+
+    fn open(&self, _req: &Request, ino: INodeNo, _flags: OpenFlags, reply: ReplyOpen) {
+        if ino.0 == FILE {
+            // Keep the page cache across opens: the file never changes while mounted.
+            reply.opened(FileHandle(0), FopenFlags::FOPEN_KEEP_CACHE);
+        } else {
+            reply.error(Errno::EISDIR);
+        }
+    }
+
+    fn read(
+        &self,
+        _req: &Request,
+        ino: INodeNo,
+        _fh: FileHandle,
+        offset: u64,
+        size: u32,
+        _flags: OpenFlags,
+        _lock_owner: Option<LockOwner>,
+        reply: ReplyData,
+    ) {
+        if ino.0 != FILE {
+            return reply.error(Errno::EISDIR);
+        }
+        let start = Instant::now();
+        let bytes = (size as u64).min(self.len.saturating_sub(offset));
+        let mut buf = vec![0u8; bytes as usize];
+        let read = self.backing.read_exact_at(&mut buf, offset);
+        let service = self.spec.service_time(size as u64);
+        let spent = start.elapsed();
+        if spent < service {
+            sleep_until(start + service);
+        } else if service > Duration::ZERO {
+            self.counters.slow_backing.fetch_add(1, Ordering::Relaxed);
+        }
+        let c = &self.counters;
+        c.requests.fetch_add(1, Ordering::Relaxed);
+        c.bytes.fetch_add(size as u64, Ordering::Relaxed);
+        c.device_ns.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
+        match read {
+            Ok(()) => reply.data(&buf),
+            Err(_) => reply.error(Errno::EIO),
+        }
+    }
+}
+
+/// Sleeps until `deadline`, to within a few microseconds: the thread's timer slack is set to 1 ns
+/// first, as a device's completion does not come 50 µs late (the default slack).
+fn sleep_until(deadline: Instant) {
+    thread_local!(static PRECISE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) });
+    if !PRECISE.get() {
+        // SAFETY: PR_SET_TIMERSLACK takes an integer and changes only this thread's timers.
+        unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1 as libc::c_ulong) };
+        PRECISE.set(true);
+    }
+    loop {
+        let now = Instant::now();
+        if now >= deadline {
+            return;
+        }
+        std::thread::sleep(deadline - now);
+    }
+}
+
+/// A file served through an emulated device: [`Self::path`] is the served copy, to be opened
+/// (mapped or read) as the original would be; unmounted when dropped (after whatever opened the
+/// served path has closed it, which the owner's field order ensures).
+pub struct DeviceMount {
+    served: PathBuf,
+    spec: DeviceSpec,
+    counters: Arc<Counters>,
+    // Unmounts on drop, before the mount point is removed.
+    session: Option<fuser::BackgroundSession>,
+    _dir: tempfile::TempDir,
+}
+
+impl DeviceMount {
+    /// Mounts a FUSE file system serving `path` (a regular local file) through a device of `spec`.
+    /// The backing file is read once first, so that its own reads come from the page cache.
+    /// Needs the right to mount (root, or FUSE's `fusermount3`); otherwise a one-line error.
+    pub fn new(path: &Path, spec: DeviceSpec) -> Result<DeviceMount> {
+        let backing = File::open(path).at(path)?;
+        let meta = backing.metadata().at(path)?;
+        if !meta.is_file() {
+            return Err(Error::InvalidArgument(format!("{}: an emulated device needs a regular file", path.display())));
+        }
+        let name = path
+            .file_name()
+            .filter(|n| !n.is_empty())
+            .ok_or_else(|| Error::InvalidArgument(format!("{}: no file name", path.display())))?
+            .to_os_string();
+        warm(&backing, meta.len()).at(path)?;
+        let dir = tempfile::Builder::new().prefix("relief-device-").tempdir().at(path)?;
+        let counters = Arc::new(Counters::default());
+        let fs = DeviceFs {
+            backing,
+            name: name.clone(),
+            len: meta.len(),
+            spec,
+            counters: Arc::clone(&counters),
+            mtime: meta.modified().unwrap_or(SystemTime::UNIX_EPOCH),
+        };
+        let mut config = Config::default();
+        config.mount_options =
+            vec![MountOption::RO, MountOption::FSName("relief-device".into()), MountOption::Subtype("relief".into())];
+        config.n_threads = Some(spec.queue_depth as usize);
+        config.clone_fd = spec.queue_depth > 1;
+        let session = fuser::spawn_mount(fs, dir.path(), &config).map_err(|e| {
+            Error::InvalidArgument(format!(
+                "{}: cannot emulate a device: mounting a FUSE file system at {} failed: {e} (needs /dev/fuse and \
+                 the right to mount, e.g. root)",
+                path.display(),
+                dir.path().display()
+            ))
+        })?;
+        Ok(DeviceMount { served: dir.path().join(&name), spec, counters, session: Some(session), _dir: dir })
+    }
+
+    /// The served copy of the file.
+    pub fn path(&self) -> &Path {
+        &self.served
+    }
+
+    pub fn spec(&self) -> DeviceSpec {
+        self.spec
+    }
+
+    /// What the device has served so far.
+    pub fn stats(&self) -> DeviceStats {
+        self.counters.get()
+    }
+}
+
+impl Drop for DeviceMount {
+    fn drop(&mut self) {
+        if let Some(session) = self.session.take() {
+            // Unmount and wait for the event loops to end; nothing to report on failure (a
+            // mount left behind is detached by the kernel when the process exits).
+            let _ = session.umount_and_join();
+        }
+    }
+}
+
+/// Reads the file at `path` once into the OS page cache (see [`DeviceMount::new`]): called before
+/// a memory cap is applied, so that the device's backing bytes are not charged to it.
+pub fn warm_path(path: &Path) -> Result<()> {
+    let file = File::open(path).at(path)?;
+    let len = file.metadata().at(path)?.len();
+    warm(&file, len).at(path)
+}
+
+/// Reads a file once, sequentially, into the OS page cache.
+fn warm(file: &File, len: u64) -> std::io::Result<()> {
+    let mut buf = vec![0u8; 1 << 20];
+    let mut at = 0;
+    while at < len {
+        let n = file.read_at(&mut buf, at)?;
+        if n == 0 {
+            break;
+        }
+        at += n as u64;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pager::source::{open_on, SourceKind};
+
+    const PAGE: usize = 4096;
+
+    fn file_of(pages: usize) -> (tempfile::TempDir, PathBuf, Vec<u8>) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("device.bin");
+        let mut s = 0x9e37_79b9_7f4a_7c15u64;
+        let bytes: Vec<u8> = (0..pages * PAGE)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                s as u8
+            })
+            .collect();
+        std::fs::write(&path, &bytes).unwrap();
+        (dir, path, bytes)
+    }
+
+    fn majors() -> i64 {
+        // SAFETY: getrusage fills the struct it is given.
+        let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+        unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) };
+        u.ru_majflt
+    }
+
+    /// N cold reads of distinct pages, positioned or by page fault: exactly N requests, each
+    /// waited out (N × latency of device time and of wall time at queue depth 1), the bytes
+    /// unchanged; read again, they come from the page cache and cost nothing.
+    #[test]
+    fn every_cold_read_is_one_request_charged_the_latency() {
+        let (_dir, path, bytes) = file_of(96);
+        let latency = Duration::from_millis(3);
+        let spec = DeviceSpec::new(3.0, 1, None).unwrap();
+        for kind in [SourceKind::Read, SourceKind::Map] {
+            let source = open_on(&path, kind, Some(spec)).unwrap();
+            assert_eq!((source.path(), source.len(), source.kind()), (path.as_path(), bytes.len() as u64, kind));
+            source.advise_random().unwrap();
+            source.evict().unwrap();
+            let dev = source.device().unwrap();
+            let pages: Vec<usize> = (0..24).map(|k| (k * 37) % 96).collect();
+            for pass in 0..2 {
+                let (before, majors_before, t) = (dev.stats(), majors(), Instant::now());
+                for &p in &pages {
+                    let at = p * PAGE + 100;
+                    let got = match source.mapped() {
+                        Some(m) => m[at..at + 64].to_vec(),
+                        None => {
+                            let mut b = vec![0u8; 64];
+                            source.read_at(at as u64, &mut b).unwrap();
+                            b
+                        }
+                    };
+                    assert_eq!(got, bytes[at..at + 64], "{kind:?} page {p}");
+                }
+                let (after, elapsed) = (dev.stats(), t.elapsed());
+                let requests = after.requests - before.requests;
+                if pass == 0 {
+                    let n = pages.len() as u32;
+                    assert_eq!(requests, n as u64, "{kind:?}: one request per cold page");
+                    assert_eq!(after.bytes - before.bytes, n as u64 * PAGE as u64, "{kind:?}");
+                    assert!(after.device_s - before.device_s >= (latency * n).as_secs_f64(), "{kind:?} {after:?}");
+                    assert!(elapsed >= latency * n, "{kind:?}: {elapsed:?} for {n} requests");
+                    if kind == SourceKind::Map {
+                        assert!(majors() - majors_before >= n as i64, "{kind:?}: the faults are major");
+                    }
+                } else {
+                    assert_eq!(requests, 0, "{kind:?}: a warm page costs no request");
+                }
+            }
+        }
+    }
+
+    /// At queue depth 4, four threads' requests are served at once: the wall time is about a
+    /// quarter of the device time; at depth 1 it is all of it.
+    #[test]
+    fn the_queue_depth_serves_requests_at_once() {
+        let (_dir, path, _) = file_of(64);
+        for depth in [1u32, 4] {
+            let source = open_on(&path, SourceKind::Read, Some(DeviceSpec::new(5.0, depth, None).unwrap())).unwrap();
+            source.advise_random().unwrap();
+            source.evict().unwrap();
+            let t = Instant::now();
+            std::thread::scope(|s| {
+                for k in 0..4 {
+                    let source = &source;
+                    s.spawn(move || {
+                        let mut b = [0u8; 8];
+                        for p in 0..8 {
+                            source.read_at(((k * 16 + p) * PAGE) as u64, &mut b).unwrap();
+                        }
+                    });
+                }
+            });
+            let (elapsed, stats) = (t.elapsed().as_secs_f64(), source.device().unwrap().stats());
+            assert_eq!(stats.requests, 32, "depth {depth}");
+            assert!(stats.device_s >= 32.0 * 0.005, "depth {depth}: {stats:?}");
+            let overlap = stats.device_s / elapsed;
+            if depth == 1 {
+                assert!(overlap < 1.05, "depth 1 serves one at a time: overlap {overlap:.2}");
+            } else {
+                assert!(overlap > 2.5, "depth 4 serves four at a time: overlap {overlap:.2}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_spec_refuses_what_no_device_has() {
+        assert!(DeviceSpec::new(8.0, 1, None).is_ok());
+        for (ms, q, r) in [(-1.0, 1, None), (f64::NAN, 1, None), (1.0, 0, None), (1.0, 65, None), (1.0, 1, Some(0.0))] {
+            assert!(DeviceSpec::new(ms, q, r).is_err(), "{ms} {q} {r:?}");
+        }
+        let s = DeviceSpec::new(2.0, 1, Some(100.0)).unwrap();
+        // 2 ms + 1 MB at 100 MB/s.
+        assert_eq!(s.service_time(1_000_000), Duration::from_secs_f64(0.012));
+    }
+}

@@ -1,0 +1,178 @@
+//! The emulated device (`--device-latency`) under the three experiments that read cold files:
+//! each charges what it claims (every request the device served waited the latency, and a map's
+//! requests are its major faults), and the results are otherwise those without a device.
+
+use crate::common;
+use serde_json::Value;
+use std::path::Path;
+
+fn json_of(o: &std::process::Output) -> Value {
+    assert!(o.status.success(), "{}", common::stderr_of(o));
+    serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&o.stdout)))
+}
+
+fn total(r: &Value, key: &str) -> f64 {
+    r["summary"][key]["total"].as_f64().unwrap_or_else(|| panic!("summary.{key} missing"))
+}
+
+fn per_frame(r: &Value, key: &str) -> Vec<Value> {
+    r["frames"].as_array().unwrap().iter().map(|f| f[key].clone()).collect()
+}
+
+const LATENCY_MS: f64 = 2.0;
+
+/// The flight of `args` on `file`, without and with a device of [`LATENCY_MS`].
+fn both(args: &[&str], file: &Path, path: &Path) -> (Value, Value) {
+    let run = |device: &[&str]| {
+        json_of(
+            &common::relief()
+                .args(args)
+                .arg(file)
+                .args(["--no-render", "--json", "--quiet", "--path"])
+                .arg(path)
+                .args(device)
+                .output()
+                .unwrap(),
+        )
+    };
+    (run(&[]), run(&["--device-latency", "2"]))
+}
+
+#[test]
+fn mesh_fly_virt_waits_for_every_fault_and_ext_for_none() {
+    let dir = tempfile::tempdir().unwrap();
+    let tree = dir.path().join("bunny.rmn");
+    let o = common::relief()
+        .args(["mesh", "build"])
+        .arg(common::mesh("bunny.off"))
+        .arg(&tree)
+        .args(["--memory", "1/2", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let path = dir.path().join("orbit.json");
+    common::make_path("orbit", &tree, 8, &path);
+
+    let (plain, slow) = both(&["mesh", "fly", "--mode", "virt", "--cold"], &tree, &path);
+    // The same meshes, frame by frame.
+    assert_eq!(per_frame(&plain, "triangles"), per_frame(&slow, "triangles"));
+    assert_eq!(per_frame(&plain, "splits"), per_frame(&slow, "splits"));
+    // Every major fault of the flight was one request of the device, each waited out.
+    let (faults, requests) = (total(&slow, "major_faults"), total(&slow, "device_requests"));
+    assert!(faults > 100.0, "a cold flight faults: {faults}");
+    assert_eq!(requests, faults, "one device request per major fault");
+    assert!(total(&slow, "device_ms") >= requests * LATENCY_MS);
+    assert!(total(&slow, "update_ms") >= requests * LATENCY_MS, "virt waits for its faults");
+    assert!(slow["summary"]["source"]
+        .as_str()
+        .unwrap()
+        .ends_with("on an emulated device (2 ms a request, queue depth 1)"));
+    assert_eq!(total(&plain, "device_requests"), 0.0);
+
+    // Ext never waits: its frames stay fast whatever the device, the pool's reads charged in
+    // the background (paced frames give the I/O thread the time a renderer would).
+    let (_, ext) = both(&["mesh", "fly", "--mode", "ext", "--memory", "1/8", "--cold", "--pace", "5"], &tree, &path);
+    let requests = total(&ext, "device_requests");
+    assert!(requests > 0.0 && total(&ext, "device_ms") >= requests * LATENCY_MS, "{}", ext["summary"]);
+    assert!(total(&ext, "update_ms") < requests * LATENCY_MS, "ext does not wait for its reads");
+}
+
+#[test]
+fn pages_fly_cold_frames_pay_the_device_for_every_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let pages = dir.path().join("bunny.rpg");
+    let o = common::relief()
+        .args(["pages", "build"])
+        .arg(common::mesh("bunny.off"))
+        .arg(&pages)
+        .args(["--layout", "hilbert", "--page-size", "8K", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let path = dir.path().join("p.json");
+    common::make_path("flyover", &pages, 6, &path);
+    let (plain, slow) = both(&["pages", "fly", "--cold-frames"], &pages, &path);
+    for key in ["triangles", "pages_requested", "bytes_read"] {
+        assert_eq!(per_frame(&plain, key), per_frame(&slow, key), "{key}");
+    }
+    // A run of contiguous pages is one pread, so one request; every frame starts cold.
+    let requests = total(&slow, "device_requests");
+    assert!(requests > 0.0 && requests <= total(&slow, "pages_requested"), "{}", slow["summary"]);
+    assert!(total(&slow, "device_ms") >= requests * LATENCY_MS);
+    assert!(total(&slow, "read_ms") >= requests * LATENCY_MS, "the fetch's reads took the device's time");
+}
+
+#[test]
+fn layouts_os_runs_report_time_under_the_device() {
+    let dir = tempfile::tempdir().unwrap();
+    let terrain = dir.path().join("z.relief");
+    let o = common::relief()
+        .arg("convert")
+        .arg(common::dem("zurich_25m_i16.tif"))
+        .arg(&terrain)
+        .args(["--layout", "interleaved", "--quiet"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let path = dir.path().join("f.json");
+    common::make_path("flyover", &terrain, 6, &path);
+    let run = |device: &[&str]| {
+        json_of(
+            &common::relief()
+                .arg("layouts")
+                .arg(&terrain)
+                .arg("--path")
+                .arg(&path)
+                .args(["--memory", "1/16", "--tolerance", "1", "--layouts", "row-major,interleaved", "--os", "--json"])
+                .arg("--cache-dir")
+                .arg(dir.path().join("cache"))
+                .args(device)
+                .output()
+                .unwrap(),
+        )
+    };
+    let (plain, slow) = (run(&[]), run(&["--device-latency", "2"]));
+    let (a, b) = (plain["runs"].as_array().unwrap(), slow["runs"].as_array().unwrap());
+    assert_eq!(a.len(), 2);
+    for (p, s) in a.iter().zip(b) {
+        let (po, so) = (&p["os"], &s["os"]);
+        // The same cold faults, now each a request of the device, and their time in the frames.
+        assert_eq!(po["major_per_frame"], so["major_per_frame"], "{}", s["layout"]);
+        let device = &so["device"];
+        let requests = device["requests"].as_f64().unwrap();
+        assert_eq!(requests, so["major"].as_f64().unwrap(), "{}", s["layout"]);
+        assert!(device["device_s"].as_f64().unwrap() * 1e3 >= requests * LATENCY_MS);
+        let frame_ms: f64 = so["ms_per_frame"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).sum();
+        assert!(frame_ms >= requests * LATENCY_MS, "{}: {frame_ms} ms", s["layout"]);
+        assert!(po["device"].is_null());
+    }
+    // The layout's fault savings are time savings under the device.
+    let ms = |r: &Value| r["os"]["ms_per_frame_mean"].as_f64().unwrap();
+    assert!(ms(&b[1]) < ms(&b[0]), "interleaved faster than row-major: {} vs {}", ms(&b[1]), ms(&b[0]));
+    // Without --os the device has nothing to serve: refused in one line.
+    let o = common::relief()
+        .arg("layouts")
+        .arg(&terrain)
+        .arg("--path")
+        .arg(&path)
+        .args(["--memory", "1/16", "--device-latency", "2"])
+        .output()
+        .unwrap();
+    let e = common::stderr_of(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(e.trim_end().lines().count() == 1 && e.contains("--device-latency needs --os"), "{e}");
+}
+
+#[test]
+fn device_options_are_checked() {
+    for (args, want) in [
+        (&["--device-latency", "-1"][..], "device latency must be between 0 and 60000 ms"),
+        (&["--device-latency", "1", "--device-queue-depth", "0"][..], "queue depth must be 1 to 64"),
+        (&["--device-latency", "1", "--device-mb-s", "0"][..], "throughput must be positive"),
+    ] {
+        let o = common::relief().args(["mesh", "fly", "missing.rmn", "--mode", "virt"]).args(args).output().unwrap();
+        let e = common::stderr_of(&o);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {e}");
+        assert!(e.trim_end().lines().count() == 1 && e.contains(want), "{args:?}: want '{want}' in {e}");
+    }
+}
