@@ -16,9 +16,16 @@ volume (1), a 7200 rpm disk (8) and an object store's first byte (30).
         its major faults.
     python3 tools/bench_device.py pages FILE.rpg... PATH.json
         relief pages fly --cold-frames under the device: the fetch's read ms per frame.
+    python3 tools/bench_device.py plot TREE.rmn... --plot OUT.png
+        Two panels from the saved flights of every tree: Virt's time over Ext's (frames after the
+        cold first one) and Ext's triangles over Virt's (last ten frames), against latency.
+    python3 tools/bench_device.py report TREE.rmn
+        The metanode table again from the saved flights, split into the cold first frame and
+        the frames after it (the steady state), with Ext's triangles against Virt's over the
+        last ten frames (has Ext's pool caught up?).
 
 Prints Markdown tables; raw JSON goes to --out (default /work/bench/device). With matplotlib
-installed, `metanode` also draws Ext/Virt against latency (--plot OUT.png).
+installed, `metanode` and `plot` draw Ext/Virt against latency (--plot OUT.png).
 """
 
 import argparse
@@ -121,31 +128,7 @@ def metanode(a):
               f"{e['triangles'] / max(v['triangles'], 1):.2f} | {e['device_requests']:.0f} | "
               f"{r['ext_over_virt_speed']:.2f} |")
     if a.plot:
-        plot(rows, tree.stem, a.plot)
-
-
-def plot(rows, name, png):
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        print("bench_device: no matplotlib, no plot", file=sys.stderr)
-        return
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for num, den in FRACTIONS:
-        f = f"{num}/{den}"
-        pts = [(r["latency_ms"], r["ext_over_virt_speed"]) for r in rows if r["fraction"] == f]
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=f"memory {f} of the tree")
-    ax.axhline(1, color="grey", lw=0.8)
-    ax.axhspan(4.4, 4.73, color="orange", alpha=0.2, label="El-Sana & Chiang, Table 2 (4.4–4.73×)")
-    ax.set_xscale("log")
-    ax.set_xlabel("emulated device latency per read request, ms")
-    ax.set_ylabel("Ext speed / Virt speed (Virt ms ÷ Ext ms)")
-    ax.set_title(f"{name}: meta-node trees, Ext against Virt")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(png, dpi=110)
+        plot_all(a, [tree])
 
 
 def layouts(a):
@@ -154,7 +137,7 @@ def layouts(a):
     out.mkdir(parents=True, exist_ok=True)
     table = {}
     for latency in LATENCIES:
-        args = [RELIEF, "layouts", terrain, "--path", path, "--memory", "1/16", "--tolerance", a.tolerance, "--os",
+        args = [RELIEF, "layouts", terrain, "--path", path, "--memory", a.memory, "--tolerance", a.tolerance, "--os",
                 "--json", "--quiet", "--device-latency", str(latency), "--cache-dir", out / "layouts-cache"]
         if a.cap:
             args += ["--os-cap", a.cap]
@@ -189,16 +172,92 @@ def pages(a):
         print(f"| {f.name} | {pages_pf:.1f} | {req_pf:.1f} | " + " | ".join(cells) + " |")
 
 
+def frames_of(path):
+    return json.loads(Path(path).read_text())["frames"]
+
+
+def report(a):
+    tree = Path(a.files[0])
+    out = Path(a.out)
+    saved = json.loads((out / f"{tree.stem}-metanode.json").read_text())
+    print("| memory | device ms | Virt first frame ms | Virt ms after | Virt faults after / frame | "
+          "Ext ms after | Ext miss % | Ext tris / Virt tris (all, last 10) | Virt / Ext after |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for r in saved["rows"]:
+        tag = f"{tree.stem}-{r['fraction'].replace('/', '_')}-{r['latency_ms']}"
+        v, e = frames_of(out / f"{tag}-virt.json"), frames_of(out / f"{tag}-ext.json")
+        after = lambda fr, k: sum(f[k] for f in fr[1:]) / max(len(fr) - 1, 1)
+        tris = lambda fr, n: sum(f["triangles"] for f in fr[-n:])
+        v_after, e_after = after(v, "update_ms"), after(e, "update_ms")
+        print(f"| {r['fraction']} ({r['budget'] / 1e6:.1f} MB) | {r['latency_ms']} | {v[0]['update_ms']:.0f} | "
+              f"{v_after:.1f} | {after(v, 'major_faults'):.1f} | {e_after:.2f} | {r['ext']['miss_pct']:.1f} | "
+              f"{tris(e, len(e)) / max(tris(v, len(v)), 1):.2f}, {tris(e, 10) / max(tris(v, 10), 1):.2f} | "
+              f"{v_after / max(e_after, 1e-9):.1f} |")
+
+
+def plot_all(a, trees=None):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    out = Path(a.out)
+    fig, (speed, quality) = plt.subplots(1, 2, figsize=(12, 4.8))
+    styles = {"1/2": "-", "1/4": "--", "1/8": ":"}
+    for n, f in enumerate(trees or a.files):
+        tree = Path(f)
+        saved = json.loads((out / f"{tree.stem}-metanode.json").read_text())
+        colour = f"C{n}"
+        for fraction, style in styles.items():
+            xs, sp, q = [], [], []
+            for r in saved["rows"]:
+                if r["fraction"] != fraction:
+                    continue
+                tag = f"{tree.stem}-{fraction.replace('/', '_')}-{r['latency_ms']}"
+                v, e = frames_of(out / f"{tag}-virt.json"), frames_of(out / f"{tag}-ext.json")
+                after = lambda fr: sum(x["update_ms"] for x in fr[1:]) / max(len(fr) - 1, 1)
+                xs.append(r["latency_ms"])
+                sp.append(after(v) / max(after(e), 1e-9))
+                q.append(sum(x["triangles"] for x in e[-10:]) / max(sum(x["triangles"] for x in v[-10:]), 1))
+            label = f"{tree.stem}, memory {fraction} of the tree"
+            speed.plot(xs, sp, style, color=colour, marker="o", label=label)
+            quality.plot(xs, q, style, color=colour, marker="o", label=label)
+    speed.axhspan(4.4, 4.73, color="orange", alpha=0.3, label="El-Sana & Chiang, Table 2")
+    speed.axhline(1, color="grey", lw=0.8)
+    for ax in (speed, quality):
+        ax.set_xscale("log")
+        ax.set_xlabel("emulated device latency per read request, ms (queue depth 1)")
+    speed.set_yscale("log")
+    speed.set_ylabel("Virt ms / Ext ms per frame (after the cold first frame)")
+    speed.set_title("Ext's speed-up over Virt")
+    quality.set_ylabel("Ext triangles / Virt triangles (last 10 frames)")
+    quality.set_ylim(0, 1.05)
+    quality.set_title("what Ext draws meanwhile")
+    quality.legend(fontsize=7, loc="lower left")
+    speed.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(a.plot, dpi=100)
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", choices=["metanode", "layouts", "pages"])
+    p.add_argument("what", choices=["metanode", "layouts", "pages", "report", "plot"])
     p.add_argument("files", nargs="+")
     p.add_argument("--tolerance", default="8")
     p.add_argument("--margin-mb", type=float, default=4.0)
     p.add_argument("--cap", help="layouts: --os-cap BYTES")
+    p.add_argument("--memory", default="1/16", help="layouts: the model's --memory")
     p.add_argument("--out", default="/work/bench/device")
     p.add_argument("--plot")
+    p.add_argument("--latencies", help="comma-separated ms (default 0.02,0.1,1,8,30)")
+    p.add_argument("--fractions", help="metanode: comma-separated budgets as fractions of the tree (default 1/2,1/4,1/8)")
     a = p.parse_args()
+    if a.fractions:
+        FRACTIONS[:] = [tuple(int(x) for x in f.split("/")) for f in a.fractions.split(",")]
+    if a.latencies:
+        LATENCIES[:] = [float(x) for x in a.latencies.split(",")]
+    if a.what == "report":
+        return report(a)
+    if a.what == "plot":
+        return plot_all(a)
     if os.geteuid() != 0:
         sys.exit("bench_device: the emulated device needs root (a FUSE mount)")
     {"metanode": metanode, "layouts": layouts, "pages": pages}[a.what](a)
