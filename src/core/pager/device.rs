@@ -277,7 +277,8 @@ impl DeviceMount {
             .ok_or_else(|| Error::InvalidArgument(format!("{}: no file name", path.display())))?
             .to_os_string();
         warm(&backing, meta.len()).at(path)?;
-        let dir = tempfile::Builder::new().prefix("relief-device-").tempdir().at(path)?;
+        reap_stale_mounts();
+        let dir = tempfile::Builder::new().prefix(MOUNT_PREFIX).tempdir().at(path)?;
         let counters = Arc::new(Counters::default());
         let fs = DeviceFs {
             backing,
@@ -321,9 +322,37 @@ impl DeviceMount {
 impl Drop for DeviceMount {
     fn drop(&mut self) {
         if let Some(session) = self.session.take() {
-            // Unmount and wait for the event loops to end; nothing to report on failure (a
-            // mount left behind is detached by the kernel when the process exits).
+            // Unmount and wait for the event loops to end; nothing to report on failure. A
+            // process killed before this runs leaves its mount behind, disconnected; the next
+            // mount reaps it (`reap_stale_mounts`).
             let _ = session.umount_and_join();
+        }
+    }
+}
+
+/// The mount points' name prefix, in the temporary directory.
+const MOUNT_PREFIX: &str = "relief-device-";
+
+/// Detaches and removes the mounts of relief devices whose server is gone (a process killed by a
+/// memory cap or a signal cannot unmount; its mount point then answers "transport endpoint is not
+/// connected" until unmounted). Best effort; a live mount answers and is left alone.
+fn reap_stale_mounts() {
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else { return };
+    for entry in entries.flatten() {
+        let is_ours = entry.file_name().to_str().is_some_and(|n| n.starts_with(MOUNT_PREFIX));
+        if !is_ours {
+            continue;
+        }
+        let dir = entry.path();
+        let disconnected = matches!(std::fs::metadata(&dir), Err(e) if e.raw_os_error() == Some(libc::ENOTCONN));
+        if !disconnected {
+            continue;
+        }
+        let Ok(c_path) = std::ffi::CString::new(dir.as_os_str().as_encoded_bytes()) else { continue };
+        // SAFETY: umount2 reads the NUL-terminated path it is given; MNT_DETACH only unlinks the
+        // dead mount from the tree.
+        if unsafe { libc::umount2(c_path.as_ptr(), libc::MNT_DETACH) } == 0 {
+            let _ = std::fs::remove_dir(&dir);
         }
     }
 }
@@ -458,6 +487,43 @@ mod tests {
                 assert!(overlap > 2.5, "depth 4 serves four at a time: overlap {overlap:.2}");
             }
         }
+    }
+
+    /// Not a test on its own: run by `a_killed_server_s_mount_is_reaped` in a child process,
+    /// it mounts a device, prints the mount point and dies without unmounting.
+    #[test]
+    #[ignore]
+    fn mount_and_die() {
+        if std::env::var_os("RELIEF_DEVICE_DIE").is_none() {
+            return;
+        }
+        let (_dir, path, _) = file_of(1);
+        let mount = DeviceMount::new(&path, DeviceSpec::new(0.0, 1, None).unwrap()).unwrap();
+        println!("MOUNT {}", mount.path().parent().unwrap().display());
+        std::process::abort();
+    }
+
+    /// A process killed while its device is mounted leaves a disconnected mount behind; the next
+    /// device mounted detaches and removes it.
+    #[test]
+    fn a_killed_server_s_mount_is_reaped() {
+        let out = std::process::Command::new(std::env::current_exe().unwrap())
+            .args(["--exact", "pager::device::tests::mount_and_die", "--ignored", "--nocapture"])
+            .env("RELIEF_DEVICE_DIE", "1")
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "the child aborts");
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        let stale = PathBuf::from(
+            stdout.lines().find_map(|l| l.strip_prefix("MOUNT ")).unwrap_or_else(|| panic!("child said: {stdout}")),
+        );
+        let err = std::fs::metadata(&stale).unwrap_err();
+        assert_eq!(err.raw_os_error(), Some(libc::ENOTCONN), "{}: {err}", stale.display());
+        let (_dir, path, _) = file_of(1);
+        let _live = DeviceMount::new(&path, DeviceSpec::new(0.0, 1, None).unwrap()).unwrap();
+        // A disconnected mount point keeps its directory entry: gone means unmounted and removed.
+        let listed = std::fs::read_dir(stale.parent().unwrap()).unwrap().flatten().any(|e| e.path() == stale);
+        assert!(!listed, "{} was not reaped", stale.display());
     }
 
     #[test]
