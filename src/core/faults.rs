@@ -480,14 +480,15 @@ fn run_os(
     };
     let major: u64 = per_frame.iter().sum();
     let n = cameras.len().max(1) as f64;
+    let ms = crate::flight::frame::Summary::of(ms_per_frame.iter().copied());
     Ok(OsFaultCounts {
         major,
         major_per_frame_mean: major as f64 / n,
         major_per_frame_max: per_frame.iter().copied().max().unwrap_or(0),
         read_bytes,
         major_per_frame: per_frame,
-        ms_per_frame_mean: ms_per_frame.iter().sum::<f64>() / n,
-        ms_per_frame_median: crate::flight::frame::Summary::of(ms_per_frame.iter().copied()).median,
+        ms_per_frame_mean: ms.mean,
+        ms_per_frame_median: ms.median,
         ms_per_frame,
         device: served,
     })
@@ -615,10 +616,8 @@ pub fn run_layouts(
                                     None => "without a memory cap".into(),
                                 } + &match options.device {
                                     Some(d) => format!(
-                                        "; each file served through an emulated device{} (its reads are \
-                                         the device's requests, not in /proc/self/io)",
-                                        crate::pager::device::describe(Some(d))
-                                            .trim_start_matches(", on an emulated device")
+                                        "; each file served through an emulated device ({d}) (its reads \
+                                         are the device's requests, not in /proc/self/io)"
                                     ),
                                     None => String::new(),
                                 };

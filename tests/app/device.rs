@@ -6,8 +6,16 @@ use crate::common;
 use serde_json::Value;
 use std::path::Path;
 
-fn json_of(o: &std::process::Output) -> Value {
-    assert!(o.status.success(), "{}", common::stderr_of(o));
+/// Runs `cmd`, which must succeed.
+fn ok(cmd: &mut std::process::Command) -> std::process::Output {
+    let o = cmd.output().unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    o
+}
+
+/// Runs `cmd`, which must succeed, and parses its standard output.
+fn json_of(cmd: &mut std::process::Command) -> Value {
+    let o = ok(cmd);
     serde_json::from_slice(&o.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&o.stdout)))
 }
 
@@ -25,14 +33,12 @@ const LATENCY_MS: f64 = 2.0;
 fn both(args: &[&str], file: &Path, path: &Path) -> (Value, Value) {
     let run = |device: &[&str]| {
         json_of(
-            &common::relief()
+            common::relief()
                 .args(args)
                 .arg(file)
                 .args(["--no-render", "--json", "--quiet", "--path"])
                 .arg(path)
-                .args(device)
-                .output()
-                .unwrap(),
+                .args(device),
         )
     };
     (run(&[]), run(&["--device-latency", "2"]))
@@ -42,14 +48,11 @@ fn both(args: &[&str], file: &Path, path: &Path) -> (Value, Value) {
 fn mesh_fly_virt_waits_for_every_fault_and_ext_for_none() {
     let dir = tempfile::tempdir().unwrap();
     let tree = dir.path().join("bunny.rmn");
-    let o = common::relief()
+    ok(common::relief()
         .args(["mesh", "build"])
         .arg(common::mesh("bunny.off"))
         .arg(&tree)
-        .args(["--memory", "1/2", "--quiet"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::stderr_of(&o));
+        .args(["--memory", "1/2", "--quiet"]));
     let path = dir.path().join("orbit.json");
     common::make_path("orbit", &tree, 8, &path);
 
@@ -81,14 +84,13 @@ fn mesh_fly_virt_waits_for_every_fault_and_ext_for_none() {
 fn pages_fly_cold_frames_pay_the_device_for_every_read() {
     let dir = tempfile::tempdir().unwrap();
     let pages = dir.path().join("bunny.rpg");
-    let o = common::relief()
-        .args(["pages", "build"])
-        .arg(common::mesh("bunny.off"))
-        .arg(&pages)
-        .args(["--layout", "hilbert", "--page-size", "8K", "--quiet"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    ok(common::relief().args(["pages", "build"]).arg(common::mesh("bunny.off")).arg(&pages).args([
+        "--layout",
+        "hilbert",
+        "--page-size",
+        "8K",
+        "--quiet",
+    ]));
     let path = dir.path().join("p.json");
     common::make_path("flyover", &pages, 6, &path);
     let (plain, slow) = both(&["pages", "fly", "--cold-frames"], &pages, &path);
@@ -106,19 +108,16 @@ fn pages_fly_cold_frames_pay_the_device_for_every_read() {
 fn layouts_os_runs_report_time_under_the_device() {
     let dir = tempfile::tempdir().unwrap();
     let terrain = dir.path().join("z.relief");
-    let o = common::relief()
-        .arg("convert")
-        .arg(common::dem("zurich_25m_i16.tif"))
-        .arg(&terrain)
-        .args(["--layout", "interleaved", "--quiet"])
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    ok(common::relief().arg("convert").arg(common::dem("zurich_25m_i16.tif")).arg(&terrain).args([
+        "--layout",
+        "interleaved",
+        "--quiet",
+    ]));
     let path = dir.path().join("f.json");
     common::make_path("flyover", &terrain, 6, &path);
     let run = |device: &[&str]| {
         json_of(
-            &common::relief()
+            common::relief()
                 .arg("layouts")
                 .arg(&terrain)
                 .arg("--path")
@@ -126,9 +125,7 @@ fn layouts_os_runs_report_time_under_the_device() {
                 .args(["--memory", "1/16", "--tolerance", "1", "--layouts", "row-major,interleaved", "--os", "--json"])
                 .arg("--cache-dir")
                 .arg(dir.path().join("cache"))
-                .args(device)
-                .output()
-                .unwrap(),
+                .args(device),
         )
     };
     let (plain, slow) = (run(&[]), run(&["--device-latency", "2"]));

@@ -159,6 +159,7 @@ impl FrameSource for PageSource {
         }
         std::mem::swap(&mut self.pages, &mut self.next_pages);
         let (reads, device) = (self.file.pager().reads(), self.file.pager().device_or_zero());
+        let served = device.since(self.device);
         let stats = FrameStats {
             update_ms: Some(started.elapsed().as_secs_f64() * 1e3),
             changed: gained + lost > 0 || !self.shown,
@@ -171,8 +172,8 @@ impl FrameSource for PageSource {
             pages_requested: self.pages.len() as u64,
             seek_pages: seek,
             read_ms: read_s * 1e3,
-            device_requests: device.requests - self.device.requests,
-            device_ms: (device.device_s - self.device.device_s) * 1e3,
+            device_requests: served.requests,
+            device_ms: served.device_s * 1e3,
             ..FrameStats::default()
         };
         self.reads = reads;

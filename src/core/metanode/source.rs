@@ -36,6 +36,7 @@ impl FrameSource for NavSource<'_> {
         let s = self.navigator.update(camera, tolerance_px)?;
         let update_ms = started.elapsed().as_secs_f64() * 1e3;
         let (reads, device) = (self.file.pager().reads(), self.file.pager().device_or_zero());
+        let served = device.since(self.device);
         let second = self.navigator.store().second_chance_hits();
         let stats = FrameStats {
             update_ms: Some(update_ms),
@@ -47,8 +48,8 @@ impl FrameSource for NavSource<'_> {
             second_chance_hits: second - self.second_chance_hits,
             pages_read: reads.pages - self.reads.pages,
             bytes_read: reads.bytes - self.reads.bytes,
-            device_requests: device.requests - self.device.requests,
-            device_ms: (device.device_s - self.device.device_s) * 1e3,
+            device_requests: served.requests,
+            device_ms: served.device_s * 1e3,
             ..FrameStats::default()
         };
         self.shown = true;

@@ -72,17 +72,20 @@ impl DeviceSpec {
     }
 }
 
+/// "2 ms a request, queue depth 1[, 100 MB/s]".
+impl std::fmt::Display for DeviceSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} ms a request, queue depth {}", self.latency_ms, self.queue_depth)?;
+        match self.bytes_per_s {
+            Some(r) => write!(f, ", {} MB/s", r / 1e6),
+            None => Ok(()),
+        }
+    }
+}
+
 /// ", on an emulated device (…)" for a source's description, or nothing without one.
 pub fn describe(spec: Option<DeviceSpec>) -> String {
-    match spec {
-        None => String::new(),
-        Some(s) => format!(
-            ", on an emulated device ({} ms a request, queue depth {}{})",
-            s.latency_ms,
-            s.queue_depth,
-            s.bytes_per_s.map_or(String::new(), |r| format!(", {} MB/s", r / 1e6))
-        ),
-    }
+    spec.map_or(String::new(), |s| format!(", on an emulated device ({s})"))
 }
 
 /// What a device has served so far.
