@@ -74,6 +74,17 @@ pub enum Command {
         /// active node, the blocks its split or its parent's collapse would read.
         #[arg(long, value_enum, default_value = "frontier")]
         prefetch: PrefetchArg,
+        /// Pool: I/O threads, each with one read in flight. Match the storage's queue depth (a
+        /// disk 1, an SSD or an object store several; with --device-latency, its
+        /// --device-queue-depth).
+        #[arg(long, value_name = "N", default_value_t = 1)]
+        io_threads: usize,
+        /// Pool: one read may take the meta-nodes queued beside the one asked for, consecutive in
+        /// the file, up to BYTES in all (K/M suffixes; 0: one meta-node a read). A meta-node's
+        /// children lie side by side, so on a device where a request costs far more than its
+        /// bytes this brings in a switch's whole neighbourhood for one latency.
+        #[arg(long, value_name = "BYTES", default_value = "0")]
+        coalesce: String,
         #[command(flatten)]
         device: DeviceArgs,
         #[command(flatten)]
@@ -198,8 +209,10 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
             let mut source = StaticMesh::new(&m)?;
             super::show::mesh(&mut source, &input, flight, mesh.up, mesh.tolerance, &fly)
         }
-        Command::Fly { file, mode, access, memory, cap, cold, prefetch, device, mesh, fly } => {
+        Command::Fly { file, mode, access, memory, cap, cold, prefetch, io_threads, coalesce, device, mesh, fly } => {
             let device = device.spec()?;
+            let io =
+                relief::pager::PoolIo { threads: io_threads, coalesce_bytes: parse_bytes("--coalesce", &coalesce)? };
             let flight = fly.check()?;
             let cap_bytes = cap.as_deref().map(|c| parse_bytes("--cap", c)).transpose()?;
             let access = match (mode, access.as_deref()) {
@@ -210,7 +223,7 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
                     Access::Pool { bytes: parse_memory("--memory", &memory, tree)? }
                 }
             };
-            let meta = MetaNodeFile::open_on(&file, access, device)?;
+            let meta = MetaNodeFile::open_io(&file, access, device, io)?;
             if cold {
                 meta.start_cold()?;
             }

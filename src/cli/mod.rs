@@ -274,6 +274,12 @@ pub struct FlyArgs {
     /// the time a renderer would take, during which prefetching goes on); not counted in frame_ms.
     #[arg(long, value_name = "MS", default_value_t = 0.0, requires = "path", allow_negative_numbers = true)]
     pub pace: f64,
+    /// Headless: before frame 0, update the first view until it is complete (nothing it needs is
+    /// missing) for at most SECONDS, timed and reported apart from the frames ("converge" in the
+    /// report), so the flight starts from the mesh a still camera would reach. Without it frame 0
+    /// is the first update.
+    #[arg(long, value_name = "SECONDS", num_args = 0..=1, default_missing_value = "120", requires = "path")]
+    pub converge: Option<f64>,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,
@@ -288,6 +294,11 @@ impl FlyArgs {
         }
         if !(self.pace >= 0.0 && self.pace.is_finite()) {
             bail!("--pace: expected milliseconds ≥ 0, got {}", self.pace);
+        }
+        if let Some(s) = self.converge {
+            if !(s > 0.0 && s <= 86_400.0) {
+                bail!("--converge: expected seconds in (0, 86400], got {s}");
+            }
         }
         if !(self.fov > 0.0 && self.fov < 180.0) {
             bail!("--fov: expected degrees between 0 and 180, got {}", self.fov);

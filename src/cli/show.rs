@@ -38,6 +38,7 @@ pub fn headless(
     let cameras = cameras(flight, path, up, fly_args)?;
     let mut options = FlightOptions::new(fly_args.width, fly_args.height, tolerance_px);
     options.pace_ms = fly_args.pace;
+    options.converge_timeout = fly_args.converge.map(std::time::Duration::from_secs_f64);
     options.frames_out = fly_args.frames_out.clone();
     options.stats_out = fly_args.stats.clone();
     options.progress = progress(fly_args.quiet);
@@ -73,6 +74,18 @@ pub fn print_summary(file: &Path, report: &FlightReport) {
         fmt_bytes(s.upload_bytes.total as u64),
         s.adapter
     );
+    if let Some(c) = &s.converge {
+        println!(
+            "  first view converged before frame 0: {} updates, {:.1} ms, {} pages read, {} major faults, {} device requests, {} triangles{}",
+            c.updates,
+            c.ms,
+            c.pages_read,
+            c.major_faults,
+            c.device_requests,
+            c.triangles,
+            if c.complete { "" } else { " (incomplete: the time allowed ran out)" }
+        );
+    }
     if s.pages_requested.total > 0.0 {
         println!(
             "  pages: {:.1} requested per frame (of {:.1} named by the k-d tree), seek {:.1} pages, fetch {:.2} ms (reads {:.2} ms) per frame (means)",

@@ -67,6 +67,42 @@ pub trait FrameSource {
     fn settle(&mut self, _camera: &Camera, _tolerance_px: f64, _timeout: std::time::Duration) -> Result<Option<u64>> {
         Ok(None)
     }
+    /// Updates for `camera` until the view is complete (nothing it needs is missing, and an
+    /// update changes nothing), at most `timeout`: the first view of a flight is then as fine as a
+    /// still camera's after any number of frames. Returns the updates made, whether the view
+    /// converged in time and the I/O the updates did (the flight fills in the time, faults and
+    /// triangles). The default, for sources whose every update is complete: one update.
+    fn converge(&mut self, camera: &Camera, tolerance_px: f64, _timeout: std::time::Duration) -> Result<Convergence> {
+        let s = self.update(camera, tolerance_px)?;
+        Ok(Convergence { updates: 1, complete: true, ..Convergence::default() }.with(&s))
+    }
+}
+
+/// What converging the first view took ([`FrameSource::converge`], before frame 0).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Convergence {
+    /// Updates made, and whether the view was complete within the time allowed.
+    pub updates: u64,
+    pub complete: bool,
+    /// Wall time, ms (device waits included), and major page faults meanwhile.
+    pub ms: f64,
+    pub major_faults: u64,
+    /// The converged view's triangles.
+    pub triangles: u64,
+    /// What the updates read: pages, and the emulated device's requests and time.
+    pub pages_read: u64,
+    pub device_requests: u64,
+    pub device_ms: f64,
+}
+
+impl Convergence {
+    /// Adds one update's reads.
+    pub fn with(mut self, s: &FrameStats) -> Convergence {
+        self.pages_read += s.pages_read;
+        self.device_requests += s.device_requests;
+        self.device_ms += s.device_ms;
+        self
+    }
 }
 
 /// What one update did: the same fields for every backend, zero where a backend has nothing to
@@ -172,6 +208,9 @@ pub struct FlightOptions {
     /// After the last frame, how long a source that missed data (a remote terrain) may take to
     /// get everything the last view needs ([`FrameSource::settle`]) before the flight fails.
     pub settle_timeout: std::time::Duration,
+    /// Converge the first view before frame 0 ([`FrameSource::converge`]) for at most this long
+    /// (`None`: frame 0 is the first update).
+    pub converge_timeout: Option<std::time::Duration>,
     pub progress: Progress,
 }
 
@@ -185,6 +224,7 @@ impl FlightOptions {
             frames_out: None,
             stats_out: None,
             settle_timeout: std::time::Duration::from_secs(120),
+            converge_timeout: None,
             progress: Progress::hidden(),
         }
     }
@@ -298,6 +338,8 @@ pub struct FlightSummary {
     /// source never misses), and the final frame: triangles and [`Frame::digest`] (hex), equal
     /// for the same geometry from a local or a remote file.
     pub settle_updates: Option<u64>,
+    /// The first view converged before frame 0 (`null`: it was not asked for).
+    pub converge: Option<Convergence>,
     pub final_triangles: u64,
     pub final_digest: String,
 }
@@ -359,6 +401,7 @@ impl FlightSummary {
             requests: total(|f| f.stats.requests),
             net_bytes: total(|f| f.stats.net_bytes),
             settle_updates: None,
+            converge: None,
             final_triangles: 0,
             final_digest: String::new(),
         }
@@ -387,6 +430,23 @@ pub fn fly<'p>(
     if let (Some(dir), Some(_)) = (&options.frames_out, &presenter) {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }
+    let converge = match (options.converge_timeout, cameras.first()) {
+        (Some(timeout), Some(first)) => {
+            let (t0, faults0) = (Instant::now(), crate::sys::mem::page_faults());
+            let c = source.converge(first, options.tolerance_px, timeout)?;
+            let triangles = match source.frame() {
+                Frame::Strip(s) => s.triangle_counts().0,
+                Frame::Triangles(t) => t.len() as u64 / 3,
+            };
+            Some(Convergence {
+                ms: t0.elapsed().as_secs_f64() * 1e3,
+                major_faults: crate::sys::mem::page_faults().0 - faults0.0,
+                triangles,
+                ..c
+            })
+        }
+        _ => None,
+    };
     let bar = options.progress.bar("fly", cameras.len() as u64, "frames");
     let mut frames = Vec::with_capacity(cameras.len());
     let t_all = Instant::now();
@@ -435,6 +495,7 @@ pub fn fly<'p>(
     let mut summary = FlightSummary::of(&frames, wall_s, options, source.describe(), adapter);
     summary.resident_gpu_bytes = presenter.as_ref().map_or(0, |p| p.resident_bytes());
     summary.settle_updates = settle_updates;
+    summary.converge = converge;
     let last = source.frame();
     summary.final_triangles = match last {
         Frame::Strip(s) => s.triangle_counts().0,

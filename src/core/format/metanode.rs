@@ -287,6 +287,16 @@ impl MetaNodeFile {
         access: Access,
         device: Option<crate::pager::device::DeviceSpec>,
     ) -> Result<MetaNodeFile> {
+        MetaNodeFile::open_io(path, access, device, crate::pager::PoolIo::default())
+    }
+
+    /// [`Self::open_on`], a pool's I/O issued as `io` says (threads, coalesced requests).
+    pub fn open_io(
+        path: &Path,
+        access: Access,
+        device: Option<crate::pager::device::DeviceSpec>,
+        io: crate::pager::PoolIo,
+    ) -> Result<MetaNodeFile> {
         let source = source::open_on(path, access.source_kind(), device)?;
         let header: MetaHeader = read_header(&*source)?;
         let bad = |what: String| corrupt(path, FileKind::MetaNode, what);
@@ -318,7 +328,7 @@ impl MetaNodeFile {
             extents: mnt.iter().map(|e| Extent { offset: e.offset, bytes: e.bytes as u64 }).collect(),
             page_bytes: header.page_bytes as u64,
         };
-        let pager = Pager::new(source, Arc::new(extents), access)?;
+        let pager = Pager::with_io(source, Arc::new(extents), access, io)?;
         Ok(MetaNodeFile { path: path.to_path_buf(), header, mnt, base, pager })
     }
 

@@ -5,7 +5,7 @@ use std::time::Instant;
 use super::navigate::{MetaStore, Navigator, PagedStore};
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::flight::frame::{Frame, FrameSource, FrameStats};
+use crate::flight::frame::{Convergence, Frame, FrameSource, FrameStats};
 use crate::format::metanode::MetaNodeFile;
 use crate::mesh::Bounds;
 use crate::pager::device::DeviceStats;
@@ -57,6 +57,27 @@ impl FrameSource for NavSource<'_> {
         self.device = device;
         self.second_chance_hits = second;
         Ok(stats)
+    }
+
+    /// Updates, letting the buffer pool finish its loads between updates, until an update has
+    /// no misses and changes nothing (map and read access: the second update).
+    fn converge(&mut self, camera: &Camera, tolerance_px: f64, timeout: std::time::Duration) -> Result<Convergence> {
+        let deadline = Instant::now() + timeout;
+        let mut c = Convergence::default();
+        loop {
+            let s = self.update(camera, tolerance_px)?;
+            c = c.with(&s);
+            c.updates += 1;
+            if s.misses == 0 && s.splits + s.collapses == 0 && c.updates > 1 {
+                return Ok(Convergence { complete: true, ..c });
+            }
+            if Instant::now() >= deadline {
+                return Ok(c);
+            }
+            if let Some(pool) = self.file.pager().pool() {
+                pool.drain()?;
+            }
+        }
     }
 
     fn frame(&self) -> Frame<'_> {

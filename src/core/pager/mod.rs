@@ -39,6 +39,7 @@ use crate::error::{Error, Result};
 pub use lru::{CacheStats, LruCache};
 pub use observer::{Faults, Granules, LruTrace, NoTrace, OsFaults, PageObserver};
 pub use os::{drop_from_page_cache, MemoryCap};
+pub use pool::PoolIo;
 use pool::{holders_for, BlockLoader, BufferPool};
 use source::{Source, SourceKind};
 
@@ -286,6 +287,51 @@ impl BlockLoader for SourceLoader {
         self.read(id, &mut buf)?;
         Ok(buf)
     }
+
+    /// Consecutive blocks lie in file order with at most a page's padding between them (as every
+    /// relief file writes them); anything else is not coalesced.
+    fn span_bytes(&self, first: u32, last: u32) -> Option<u64> {
+        let a = self.table.extent(first)?;
+        let b = self.table.extent(last)?;
+        if first == last {
+            return Some(a.bytes);
+        }
+        let page = self.table.page_bytes().max(1);
+        let (mut end, mut id) = (a.offset + a.bytes, first + 1);
+        while id <= last {
+            let e = self.table.extent(id)?;
+            if e.offset < end || e.offset - end >= page {
+                return None;
+            }
+            end = e.offset + e.bytes;
+            id += 1;
+        }
+        Some(b.offset + b.bytes - a.offset)
+    }
+
+    fn load_run(&self, first: u32, count: u32, recycled: &mut Vec<BlockBuf>) -> Result<Vec<BlockBuf>> {
+        let last = first + count.saturating_sub(1);
+        let (Some(span), Some(a)) = (self.span_bytes(first, last), self.table.extent(first)) else {
+            return (first..first + count).map(|id| self.load(id, recycled.pop())).collect();
+        };
+        // One request for the whole span, then each block copied out of it.
+        let mut bytes = vec![0u8; span as usize];
+        self.source.read_at(a.offset, &mut bytes)?;
+        let mut blocks = Vec::with_capacity(count as usize);
+        let mut read = 0;
+        for id in first..=last {
+            let e = extent_of(&*self.source, &*self.table, id)?;
+            let mut buf = recycled.pop().unwrap_or_default();
+            buf.resize(e.bytes as usize);
+            let at = (e.offset - a.offset) as usize;
+            buf.bytes_mut().copy_from_slice(&bytes[at..at + e.bytes as usize]);
+            report(&self.observer, e);
+            read += e.bytes;
+            blocks.push(buf);
+        }
+        self.reads.add(&*self.table, count as u64, read);
+        Ok(blocks)
+    }
 }
 
 fn extent_of(source: &dyn Source, table: &dyn BlockTable, id: u32) -> Result<Extent> {
@@ -318,6 +364,13 @@ impl Pager {
     /// a remote file, which is read instead (every file kind opens remote locations alike); a
     /// pool gets as many place holders as `bytes` allows for the table's largest block.
     pub fn new(source: Arc<dyn Source>, table: Arc<dyn BlockTable>, access: Access) -> Result<Pager> {
+        Pager::with_io(source, table, access, PoolIo::default())
+    }
+
+    /// [`Self::new`], a pool's I/O issued as `io` says (threads, coalesced requests). The memory
+    /// budget covers the I/O threads' requests in flight too: each may hold two copies of a
+    /// coalesced span (the read and the blocks cut from it) on top of the holders.
+    pub fn with_io(source: Arc<dyn Source>, table: Arc<dyn BlockTable>, access: Access, io: PoolIo) -> Result<Pager> {
         let observer = ObserverSlot::default();
         let access = if access == Access::Map && source.remote().is_some() { Access::Read } else { access };
         let mode = match access {
@@ -332,14 +385,25 @@ impl Pager {
             }
             Access::Read => Mode::Read(ReadCounter::default()),
             Access::Pool { bytes } => {
-                let holders = holders_for(bytes, table.max_block_bytes().max(1))?;
+                let block = table.max_block_bytes().max(1);
+                // One block of staging per thread, or two spans when coalescing; holders_for keeps
+                // one block back itself.
+                let per_thread = block.max(2 * io.coalesce_bytes.div_ceil(block) * block);
+                let reserve = (per_thread * io.threads as u64).saturating_sub(block);
+                let holders = holders_for(bytes.saturating_sub(reserve), block).map_err(|e| match e {
+                    Error::InvalidArgument(m) if reserve > 0 => Error::InvalidArgument(format!(
+                        "{m}, after {reserve} bytes for {} I/O thread(s) and their coalesced reads",
+                        io.threads
+                    )),
+                    e => e,
+                })?;
                 let loader = SourceLoader {
                     source: Arc::clone(&source),
                     table: Arc::clone(&table),
                     reads: ReadCounter::default(),
                     observer: Arc::clone(&observer),
                 };
-                Mode::Pool(BufferPool::new(loader, holders)?)
+                Mode::Pool(BufferPool::with_io(loader, holders, io)?)
             }
         };
         Ok(Pager { source, table, access, mode, observer })

@@ -50,6 +50,36 @@ pub trait BlockLoader: Send + Sync + 'static {
     /// Reads block `id` from disk, reusing `recycled` storage when given (a holder's previous
     /// content, or a block read and then not installed).
     fn load(&self, id: u32, recycled: Option<Self::Block>) -> Result<Self::Block>;
+    /// The bytes one request from the start of block `first` to the end of block `last`
+    /// (`first ≤ last`) would read, where the loader can read consecutive blocks in one request;
+    /// `None` (the default) where it cannot, and the pool then never coalesces.
+    fn span_bytes(&self, _first: u32, _last: u32) -> Option<u64> {
+        None
+    }
+    /// Reads blocks `first..first + count` in one request (as [`span_bytes`](Self::span_bytes)
+    /// measured it), reusing storage from `recycled`. The default reads them one by one.
+    fn load_run(&self, first: u32, count: u32, recycled: &mut Vec<Self::Block>) -> Result<Vec<Self::Block>> {
+        (first..first + count).map(|id| self.load(id, recycled.pop())).collect()
+    }
+}
+
+/// How the pool's I/O is issued.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PoolIo {
+    /// I/O threads, each with one request in flight: use as many as the storage serves at once
+    /// (its queue depth). At least 1.
+    pub threads: usize,
+    /// One request may read consecutive blocks up to this many bytes in all: the block a command
+    /// asks for plus the queued blocks beside it (and the blocks between, read and dropped).
+    /// 0 or anything below a block: one block per request.
+    pub coalesce_bytes: u64,
+}
+
+impl Default for PoolIo {
+    /// One thread, one block per request: the paper's I/O process.
+    fn default() -> Self {
+        PoolIo { threads: 1, coalesce_bytes: 0 }
+    }
 }
 
 /// Which way the navigator wants to switch, for [`BufferPool::request_urgent`].
@@ -85,8 +115,13 @@ pub struct PoolStats {
     /// Holders taken back off the free list with their block intact (no disk read), by a count
     /// raised from 0/0.
     pub second_chance_hits: u64,
-    /// Blocks read by the loader (pages read), including reads then given up.
+    /// Blocks read by the loader (pages read), including reads then given up and blocks read
+    /// only because they lay between two wanted ones of a coalesced request.
     pub disk_reads: u64,
+    /// Requests the I/O threads sent to the loader (one per block, or one per coalesced run).
+    pub read_requests: u64,
+    /// Blocks read inside a coalesced request that nobody had asked for (dropped).
+    pub gap_blocks: u64,
     /// Speculative prefetches queued (a reference raised on a block not hashed and not queued).
     pub prefetch_queued: u64,
     /// Speculative prefetches given up: no free holder at I/O time.
@@ -188,6 +223,8 @@ struct Table<B> {
     pending_refs: IdMap<u32>,
     /// Blocks with a load queued or in progress, and how urgently.
     queued: IdMap<Kind>,
+    /// Blocks an I/O thread is reading now (so another thread does not read them too).
+    loading: IdMap<()>,
     in_use: usize,
     /// Holders with usage > 0 that eviction was asked to take: must stay 0 (the code never picks
     /// one; this is the tripwire that [`BufferPool::check_invariants`] reads).
@@ -207,6 +244,7 @@ impl<B> Table<B> {
             free_len: 0,
             pending_refs: IdMap::default(),
             queued: IdMap::default(),
+            loading: IdMap::default(),
             in_use: 0,
             in_use_evictions: 0,
             stats: PoolStats { holders: k, ..PoolStats::default() },
@@ -339,32 +377,35 @@ impl<B> Table<B> {
     }
 }
 
-/// What Navigate posts on the command board. Urgent loads and shutdown go to the front. The I/O
+/// What Navigate posts on the command board. Urgent loads go to the front. The I/O
 /// thread reads a load's urgency from the table, not the command, since a queued speculative
 /// prefetch can be upgraded while it waits.
 enum Command {
     Prefetch(u32),
     Urgent(u32),
-    Shutdown,
 }
 
 struct Board {
     queue: VecDeque<Command>,
     /// Commands wait on the board while held (see [`BufferPool::hold`]).
     held: bool,
-    /// The I/O thread is executing a command.
-    busy: bool,
-    /// The I/O thread has exited (shutdown or a loader error); nothing more will be executed.
+    /// I/O threads executing a command now.
+    busy: usize,
+    /// The pool is being dropped: the I/O threads exit.
+    shutdown: bool,
+    /// A loader error stopped the I/O threads; nothing more will be executed.
     stopped: bool,
 }
 
 struct Shared<L: BlockLoader> {
     loader: L,
+    /// Bytes one coalesced request may read (see [`PoolIo::coalesce_bytes`]).
+    coalesce_bytes: u64,
     table: Mutex<Table<L::Block>>,
     board: Mutex<Board>,
     /// Signalled when a command is posted.
     work: Condvar,
-    /// Signalled when the I/O thread goes idle or stops.
+    /// Signalled when an I/O thread goes idle or the threads stop.
     idle: Condvar,
     /// The first loader error, until taken.
     error: Mutex<Option<Error>>,
@@ -379,63 +420,113 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 impl<L: BlockLoader> Shared<L> {
     fn post(&self, command: Command) {
         let mut b = lock(&self.board);
-        if b.stopped {
+        if b.stopped || b.shutdown {
             return;
         }
         match command {
             Command::Prefetch(_) => b.queue.push_back(command),
-            Command::Urgent(_) | Command::Shutdown => b.queue.push_front(command),
+            Command::Urgent(_) => b.queue.push_front(command),
         }
         drop(b);
         self.work.notify_one();
     }
 
-    /// The I/O process: executes commands until shutdown or a loader error.
+    /// An I/O process: executes commands until shutdown or a loader error (its own or another
+    /// thread's).
     fn run(&self) {
-        // Storage for the next read: a recycled holder's content that nobody else holds.
-        let mut staging: Option<L::Block> = None;
+        // Storage for the next reads: recycled holders' content that nobody else holds.
+        let mut staging: Vec<L::Block> = Vec::new();
         loop {
             let command = {
                 let mut b = lock(&self.board);
                 loop {
-                    let runnable = !b.held || matches!(b.queue.front(), Some(Command::Shutdown));
-                    if let Some(c) = runnable.then(|| b.queue.pop_front()).flatten() {
-                        b.busy = true;
+                    if b.shutdown || b.stopped {
+                        return;
+                    }
+                    if let Some(c) = (!b.held).then(|| b.queue.pop_front()).flatten() {
+                        b.busy += 1;
                         break c;
                     }
-                    b.busy = false;
                     self.idle.notify_all();
                     b = self.work.wait(b).unwrap_or_else(|p| p.into_inner());
                 }
             };
             let id = match command {
-                Command::Shutdown => break,
                 Command::Prefetch(id) | Command::Urgent(id) => id,
             };
-            if let Err(e) = self.load(id, &mut staging) {
+            let result = self.load(id, &mut staging);
+            let mut b = lock(&self.board);
+            b.busy -= 1;
+            if let Err(e) = result {
                 let mut slot = lock(&self.error);
                 if slot.is_none() {
                     *slot = Some(e);
                 }
-                break;
+                drop(slot);
+                b.stopped = true;
+                b.queue.clear();
+                drop(b);
+                self.work.notify_all();
+                self.idle.notify_all();
+                return;
             }
         }
-        let mut b = lock(&self.board);
-        b.stopped = true;
-        b.busy = false;
-        b.queue.clear();
-        drop(b);
-        self.idle.notify_all();
     }
 
-    /// Executes one prefetch: check, read outside the lock, then install under it.
-    fn load(&self, id: u32, staging: &mut Option<L::Block>) -> Result<()> {
-        {
+    /// Whether block `id` is queued, still wanted and neither hashed nor being read.
+    fn wanted(t: &Table<L::Block>, id: u32) -> bool {
+        match t.queued.get(&id) {
+            Some(&kind) => {
+                (kind == Kind::Urgent || t.pending_refs.get(&id).is_some_and(|&r| r > 0))
+                    && !t.index.contains_key(&id)
+                    && !t.loading.contains_key(&id)
+            }
+            None => false,
+        }
+    }
+
+    /// The run of consecutive blocks one request reads for block `id`: `id` and the wanted
+    /// blocks beside it, within [`PoolIo::coalesce_bytes`], taking no more wanted blocks than
+    /// there are free holders (at least `id` itself).
+    fn run_for(&self, t: &Table<L::Block>, id: u32) -> (u32, u32) {
+        let (mut lo, mut hi) = (id, id);
+        let limit = self.coalesce_bytes;
+        let fits = |a: u32, b: u32| self.loader.span_bytes(a, b).is_some_and(|n| n <= limit);
+        if !fits(id, id) {
+            return (id, id);
+        }
+        let mut room = t.free_len.saturating_sub(1);
+        let mut c = id;
+        while room > 0 && c < u32::MAX - 1 && fits(lo, c + 1) {
+            c += 1;
+            if Self::wanted(t, c) {
+                hi = c;
+                room -= 1;
+            }
+        }
+        let mut c = id;
+        while room > 0 && c > 0 && fits(c - 1, hi) {
+            c -= 1;
+            if Self::wanted(t, c) {
+                lo = c;
+                room -= 1;
+            }
+        }
+        (lo, hi)
+    }
+
+    /// Executes one prefetch: check, read outside the lock (with the wanted blocks beside it, where
+    /// coalescing is on), then install under it.
+    fn load(&self, id: u32, staging: &mut Vec<L::Block>) -> Result<()> {
+        let (lo, hi) = {
             let mut t = lock(&self.table);
             // A stale command (a duplicate, or an upgrade already executed) has no entry.
             let Some(&kind) = t.queued.get(&id) else { return Ok(()) };
-            let wanted = kind == Kind::Urgent || t.pending_refs.get(&id).is_some_and(|&r| r > 0);
-            if t.index.contains_key(&id) || !wanted {
+            if t.loading.contains_key(&id) {
+                // Another thread reads it now and will settle the entry.
+                return Ok(());
+            }
+            if !Self::wanted(&t, id) {
                 t.queued.remove(&id);
                 return Ok(());
             }
@@ -448,42 +539,83 @@ impl<L: BlockLoader> Shared<L> {
                 }
                 return Ok(());
             }
-        }
-        let read = catch_unwind(AssertUnwindSafe(|| self.loader.load(id, staging.take())));
-        let block = match read {
-            Ok(Ok(block)) => Arc::new(block),
-            Ok(Err(e)) => {
-                lock(&self.table).queued.remove(&id);
-                return Err(e);
-            }
-            Err(_) => {
-                lock(&self.table).queued.remove(&id);
-                return Err(Error::Pool(format!("the block loader panicked reading block {id}")));
-            }
-        };
-        let mut t = lock(&self.table);
-        t.stats.disk_reads += 1;
-        // Re-read the urgency: Navigate may have upgraded the request during the read. The holder
-        // is chosen only now, under the lock, so it cannot be one Navigate started using meanwhile.
-        let kind = t.queued.remove(&id).unwrap_or(Kind::Speculative);
-        let victim = t.take_victim(kind);
-        let unused = match victim {
-            Some(h) => match t.install(h, id, block) {
-                Ok(old) => old,
-                Err(block) => Some(block),
-            },
-            None => {
-                match kind {
-                    Kind::Speculative => t.stats.prefetch_given_up += 1,
-                    Kind::Urgent => t.stats.urgent_given_up += 1,
+            let (lo, hi) = self.run_for(&t, id);
+            for b in lo..=hi {
+                if b == id || Self::wanted(&t, b) {
+                    t.loading.insert(b, ());
                 }
-                Some(block)
+            }
+            (lo, hi)
+        };
+        let count = hi - lo + 1;
+        let read = catch_unwind(AssertUnwindSafe(|| {
+            if count == 1 {
+                self.loader.load(id, staging.pop()).map(|b| vec![b])
+            } else {
+                self.loader.load_run(lo, count, staging)
+            }
+        }));
+        let blocks = match read {
+            Ok(Ok(blocks)) if blocks.len() == count as usize => blocks,
+            failed => {
+                let mut t = lock(&self.table);
+                for b in lo..=hi {
+                    if t.loading.remove(&b).is_some() {
+                        t.queued.remove(&b);
+                    }
+                }
+                return Err(match failed {
+                    Ok(Err(e)) => e,
+                    Ok(Ok(blocks)) => {
+                        Error::Pool(format!("the block loader returned {} blocks for blocks {lo}..={hi}", blocks.len()))
+                    }
+                    Err(_) => Error::Pool(format!("the block loader panicked reading block {id}")),
+                });
             }
         };
+        let mut unused = Vec::new();
+        let mut t = lock(&self.table);
+        t.stats.read_requests += 1;
+        t.stats.disk_reads += count as u64;
+        for (b, block) in (lo..=hi).zip(blocks) {
+            if t.loading.remove(&b).is_none() {
+                // Read only because it lay between wanted blocks.
+                t.stats.gap_blocks += 1;
+                unused.push(Arc::new(block));
+                continue;
+            }
+            let block = Arc::new(block);
+            // Re-read the urgency: Navigate may have upgraded the request during the read. The
+            // holder is chosen only now, under the lock, so it cannot be one Navigate started using
+            // meanwhile.
+            let kind = t.queued.remove(&b).unwrap_or(Kind::Speculative);
+            if t.index.contains_key(&b) {
+                // Loaded meanwhile by a reader that could not wait (`get_or_load`).
+                unused.push(block);
+                continue;
+            }
+            match t.take_victim(kind) {
+                Some(h) => match t.install(h, b, block) {
+                    Ok(old) => unused.extend(old),
+                    Err(block) => unused.push(block),
+                },
+                None => {
+                    match kind {
+                        Kind::Speculative => t.stats.prefetch_given_up += 1,
+                        Kind::Urgent => t.stats.urgent_given_up += 1,
+                    }
+                    unused.push(block);
+                }
+            }
+        }
         drop(t);
-        // Outside the lock: recycle what nobody else holds, drop the rest.
-        if let Some(old) = unused {
-            *staging = Arc::try_unwrap(old).ok();
+        // Outside the lock: recycle what nobody else holds (a few, for the next run), drop the rest.
+        for old in unused {
+            if staging.len() <= count as usize {
+                if let Ok(b) = Arc::try_unwrap(old) {
+                    staging.push(b);
+                }
+            }
         }
         Ok(())
     }
@@ -494,13 +626,25 @@ impl<L: BlockLoader> Shared<L> {
 /// operations; call them from one navigating thread (the usage counts are its to keep).
 pub struct BufferPool<L: BlockLoader> {
     shared: Arc<Shared<L>>,
-    io: Option<JoinHandle<()>>,
+    io: Vec<JoinHandle<()>>,
 }
 
 impl<L: BlockLoader> BufferPool<L> {
     /// A pool of `holders` place holders (≥ [`MIN_HOLDERS`]; see [`holders_for`]), all free, and
-    /// its I/O thread.
+    /// its I/O thread (one block per request).
     pub fn new(loader: L, holders: usize) -> Result<BufferPool<L>> {
+        BufferPool::with_io(loader, holders, PoolIo::default())
+    }
+
+    /// A pool as [`new`](Self::new) makes it, with `io.threads` I/O threads and coalesced
+    /// requests of up to `io.coalesce_bytes`.
+    pub fn with_io(loader: L, holders: usize, io: PoolIo) -> Result<BufferPool<L>> {
+        if io.threads == 0 || io.threads > 256 {
+            return Err(Error::InvalidArgument(format!(
+                "the buffer pool needs 1 to 256 I/O threads, got {}",
+                io.threads
+            )));
+        }
         if !(MIN_HOLDERS..=MAX_HOLDERS).contains(&holders) {
             return Err(Error::InvalidArgument(format!(
                 "the buffer pool needs between {MIN_HOLDERS} and {MAX_HOLDERS} place holders, got {holders}"
@@ -508,18 +652,24 @@ impl<L: BlockLoader> BufferPool<L> {
         }
         let shared = Arc::new(Shared {
             loader,
+            coalesce_bytes: io.coalesce_bytes,
             table: Mutex::new(Table::new(holders)),
-            board: Mutex::new(Board { queue: VecDeque::new(), held: false, busy: false, stopped: false }),
+            board: Mutex::new(Board { queue: VecDeque::new(), held: false, busy: 0, shutdown: false, stopped: false }),
             work: Condvar::new(),
             idle: Condvar::new(),
             error: Mutex::new(None),
         });
-        let io_shared = Arc::clone(&shared);
-        let io = std::thread::Builder::new()
-            .name("relief-pool-io".into())
-            .spawn(move || io_shared.run())
-            .map_err(|e| Error::Pool(format!("cannot start the I/O thread: {e}")))?;
-        Ok(BufferPool { shared, io: Some(io) })
+        let mut pool = BufferPool { shared, io: Vec::with_capacity(io.threads) };
+        for _ in 0..io.threads {
+            let io_shared = Arc::clone(&pool.shared);
+            let thread = std::thread::Builder::new()
+                .name("relief-pool-io".into())
+                .spawn(move || io_shared.run())
+                .map_err(|e| Error::Pool(format!("cannot start an I/O thread: {e}")))?;
+            // Pushed at once, so a failure to start the next one still stops and joins these.
+            pool.io.push(thread);
+        }
+        Ok(pool)
     }
 
     /// The loader (for its own counters).
@@ -659,7 +809,7 @@ impl<L: BlockLoader> BufferPool<L> {
     pub fn hold(&self, held: bool) {
         lock(&self.shared.board).held = held;
         if !held {
-            self.shared.work.notify_one();
+            self.shared.work.notify_all();
         }
     }
 
@@ -669,7 +819,7 @@ impl<L: BlockLoader> BufferPool<L> {
     pub fn drain(&self) -> Result<()> {
         self.hold(false);
         let mut b = lock(&self.shared.board);
-        while (!b.queue.is_empty() || b.busy) && !b.stopped {
+        while (!b.queue.is_empty() || b.busy > 0) && !b.stopped {
             b = self.shared.idle.wait(b).unwrap_or_else(|p| p.into_inner());
         }
         let stopped = b.stopped;
@@ -752,10 +902,11 @@ impl<L: BlockLoader> BufferPool<L> {
 }
 
 impl<L: BlockLoader> Drop for BufferPool<L> {
-    /// Stops the I/O thread (pending prefetches are dropped) and joins it.
+    /// Stops the I/O threads (pending prefetches are dropped) and joins them.
     fn drop(&mut self) {
-        self.shared.post(Command::Shutdown);
-        if let Some(io) = self.io.take() {
+        lock(&self.shared.board).shutdown = true;
+        self.shared.work.notify_all();
+        for io in self.io.drain(..) {
             // A panic can only come from our own bookkeeping; nothing to add while dropping.
             let _ = io.join();
         }
