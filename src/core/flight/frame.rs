@@ -31,6 +31,14 @@ pub enum Frame<'a> {
 }
 
 impl Frame<'_> {
+    /// Non-degenerate triangles drawn.
+    pub fn triangle_count(&self) -> u64 {
+        match self {
+            Frame::Strip(s) => s.triangle_counts().0,
+            Frame::Triangles(t) => t.len() as u64 / 3,
+        }
+    }
+
     /// FNV-1a (64-bit) of what is drawn, in order: the strip's grid posts, or the triangles'
     /// coordinate bits. Equal digests: the same geometry.
     pub fn digest(&self) -> u64 {
@@ -434,14 +442,10 @@ pub fn fly<'p>(
         (Some(timeout), Some(first)) => {
             let (t0, faults0) = (Instant::now(), crate::sys::mem::page_faults());
             let c = source.converge(first, options.tolerance_px, timeout)?;
-            let triangles = match source.frame() {
-                Frame::Strip(s) => s.triangle_counts().0,
-                Frame::Triangles(t) => t.len() as u64 / 3,
-            };
             Some(Convergence {
                 ms: t0.elapsed().as_secs_f64() * 1e3,
                 major_faults: crate::sys::mem::page_faults().0 - faults0.0,
-                triangles,
+                triangles: source.frame().triangle_count(),
                 ..c
             })
         }
@@ -497,10 +501,7 @@ pub fn fly<'p>(
     summary.settle_updates = settle_updates;
     summary.converge = converge;
     let last = source.frame();
-    summary.final_triangles = match last {
-        Frame::Strip(s) => s.triangle_counts().0,
-        Frame::Triangles(t) => t.len() as u64 / 3,
-    };
+    summary.final_triangles = last.triangle_count();
     summary.final_digest = format!("{:016x}", last.digest());
     let report = FlightReport { frames, summary };
     if let Some(out) = &options.stats_out {

@@ -9,13 +9,15 @@
 //! hashed, so a block released and wanted again before its holder is reused comes back without a
 //! disk read ("second chance"); loads take the *first* free holder.
 //!
-//! Two threads, as in §3.3.4: *Navigate* (the caller; [`BufferPool::get`],
+//! Two processes, as in §3.3.4: *Navigate* (the caller; [`BufferPool::get`],
 //! [`BufferPool::use_block`], [`BufferPool::reference`], [`BufferPool::request_urgent`]) and *I/O*
-//! (a thread owned by the pool). They share a command board (one lock) and the holder table (a
+//! (threads owned by the pool: one by default, as in the paper; more for storage that serves
+//! several requests at once, [`PoolIo::threads`], a block being read by one thread is skipped by
+//! the others). They share a command board (one lock) and the holder table (a
 //! second lock, held only for bookkeeping, never across a disk read). The paper's hazard — I/O
 //! lags behind Navigate and recycles a holder that Navigate uses again — is closed by choosing the
 //! holder to fill only *after* the read, under the table lock, among holders whose usage count is 0
-//! at that moment; the read itself goes into a staging buffer that the I/O thread owns (the content
+//! at that moment; the read itself goes into staging buffers that each I/O thread owns (the content
 //! of the last holder it recycled, when nobody else still holds it).
 //!
 //! Holder contents are handed out as `Arc<Block>`: a block is never copied, and a recycled holder
@@ -29,6 +31,11 @@
 //! reference to it), not by [`BufferPool::get`]: `get` only looks, and returns a block on the
 //! free list too since its content is intact. Taking the holder back on a mere look would leave a
 //! holder with counts 0/0 outside the free list, lost if the navigator then does not enter it.
+//!
+//! Coalescing ([`PoolIo::coalesce_bytes`], off by default): a load may also take the queued,
+//! still-wanted blocks next to it in the file, up to a byte limit, in one request; a meta-node's
+//! children are contiguous, so on a device where a request costs far more than its bytes a
+//! switch's neighbourhood costs one latency. Blocks between them are read and dropped.
 //!
 //! Prefetching (§3.3.2): raising the reference count of a block not in memory queues a
 //! *speculative* prefetch, given up when no holder is free at I/O time. An *urgent* prefetch
