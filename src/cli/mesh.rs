@@ -211,8 +211,15 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
         }
         Command::Fly { file, mode, access, memory, cap, cold, prefetch, io_threads, coalesce, device, mesh, fly } => {
             let device = device.spec()?;
+            if !(1..=256).contains(&io_threads) {
+                bail!("--io-threads: expected 1 to 256 I/O threads, got {io_threads}");
+            }
             let io =
                 relief::pager::PoolIo { threads: io_threads, coalesce_bytes: parse_bytes("--coalesce", &coalesce)? };
+            let pooled = !matches!((mode, access.as_deref()), (Some(NavMode::Virt), _) | (None, Some("map" | "read")));
+            if !pooled && io != relief::pager::PoolIo::default() {
+                bail!("--io-threads and --coalesce apply to pool access (--mode ext or --access pool) only");
+            }
             let flight = fly.check()?;
             let cap_bytes = cap.as_deref().map(|c| parse_bytes("--cap", c)).transpose()?;
             let access = match (mode, access.as_deref()) {

@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use relief::camera::{Camera, UpAxis};
-use relief::flight::frame::{fly, FlightOptions, FlightReport, FrameSource, Presenter};
+use relief::flight::frame::{fly, ConvergeEnd, FlightOptions, FlightReport, FrameSource, Presenter};
 use relief::flight::FlightPath;
 use relief::render::Gpu;
 use relief::window::{mesh_window, MeshWindowOptions};
@@ -83,7 +83,11 @@ pub fn print_summary(file: &Path, report: &FlightReport) {
             c.major_faults,
             c.device_requests,
             c.triangles,
-            if c.complete { "" } else { " (incomplete: the time allowed ran out)" }
+            match c.end {
+                ConvergeEnd::Complete => "",
+                ConvergeEnd::Timeout => " (incomplete: the time allowed ran out)",
+                ConvergeEnd::Stalled => " (incomplete: stopped making progress; the view's front does not fit the memory given)",
+            }
         );
     }
     if s.pages_requested.total > 0.0 {

@@ -160,12 +160,58 @@ fn layouts_os_runs_report_time_under_the_device() {
     assert!(e.trim_end().lines().count() == 1 && e.contains("--device-latency needs --os"), "{e}");
 }
 
+/// Issue 23's first-frame test: on a slow device an Ext flight's frame 0 is coarse unless the
+/// first view converges first; converged, it has the triangles of Virt's (every block at hand)
+/// frame 0 of the same view, with one I/O thread or several and coalesced reads.
+#[test]
+fn converging_first_makes_frame_0_as_fine_as_a_still_camera_would_get() {
+    let dir = tempfile::tempdir().unwrap();
+    let tree = dir.path().join("bunny.rmn");
+    ok(common::relief()
+        .args(["mesh", "build"])
+        .arg(common::mesh("bunny.off"))
+        .arg(&tree)
+        .args(["--memory", "1/2", "--quiet"]));
+    let path = dir.path().join("orbit.json");
+    common::make_path("orbit", &tree, 4, &path);
+    let fly = |args: &[&str]| {
+        json_of(
+            common::relief()
+                .args(["mesh", "fly"])
+                .arg(&tree)
+                .args(["--tolerance", "8", "--no-render", "--json", "--quiet", "--path"])
+                .arg(&path)
+                .args(args),
+        )
+    };
+    let triangles_at_0 = |r: &Value| r["frames"][0]["triangles"].as_f64().unwrap();
+    let still = triangles_at_0(&fly(&["--mode", "virt"]));
+    assert!(still > 1000.0, "{still}");
+    let ext = ["--mode", "ext", "--memory", "16M", "--device-latency", "2"];
+    let coarse = triangles_at_0(&fly(&ext));
+    assert!(coarse < 0.5 * still, "without converging frame 0 has {coarse} of {still} triangles");
+    for io in [&["--io-threads", "1"][..], &["--io-threads", "3", "--coalesce", "64K"]] {
+        let r = fly(&[&ext[..], io, &["--converge", "120"]].concat());
+        let c = &r["summary"]["converge"];
+        assert_eq!((c["complete"].as_bool(), c["end"].as_str()), (Some(true), Some("complete")), "{io:?}: {c}");
+        let first = triangles_at_0(&r);
+        assert!(first >= 0.95 * still, "{io:?}: frame 0 has {first} of {still} triangles");
+        let (requests, device_ms) = (c["device_requests"].as_f64().unwrap(), c["device_ms"].as_f64().unwrap());
+        assert!(requests > 0.0 && device_ms >= requests * LATENCY_MS, "{io:?}: {c}");
+        assert!(c["ms"].as_f64().unwrap() >= LATENCY_MS, "{io:?}: {c}");
+    }
+}
+
 #[test]
 fn device_options_are_checked() {
     for (args, want) in [
         (&["--device-latency", "-1"][..], "device latency must be between 0 and 60000 ms"),
         (&["--device-latency", "1", "--device-queue-depth", "0"][..], "queue depth must be 1 to 64"),
         (&["--device-latency", "1", "--device-mb-s", "0"][..], "throughput must be positive"),
+        (&["--io-threads", "0"][..], "--io-threads: expected 1 to 256"),
+        (&["--coalesce", "12Q"][..], "--coalesce: expected bytes"),
+        (&["--coalesce", "64K"][..], "apply to pool access"),
+        (&["--path", "missing.json", "--converge", "0"][..], "--converge: expected seconds in (0, 86400]"),
     ] {
         let o = common::relief().args(["mesh", "fly", "missing.rmn", "--mode", "virt"]).args(args).output().unwrap();
         let e = common::stderr_of(&o);

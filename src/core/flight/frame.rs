@@ -82,16 +82,35 @@ pub trait FrameSource {
     /// triangles). The default, for sources whose every update is complete: one update.
     fn converge(&mut self, camera: &Camera, tolerance_px: f64, _timeout: std::time::Duration) -> Result<Convergence> {
         let s = self.update(camera, tolerance_px)?;
-        Ok(Convergence { updates: 1, complete: true, ..Convergence::default() }.with(&s))
+        Ok(Convergence { updates: 1, complete: true, end: ConvergeEnd::Complete, ..Convergence::default() }.with(&s))
     }
 }
+
+/// Why converging the first view stopped.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ConvergeEnd {
+    /// Nothing the view needs is missing and an update changes nothing.
+    #[default]
+    Complete,
+    /// The time allowed ran out first.
+    Timeout,
+    /// Updates stopped making progress: no update in [`STALL_UPDATES`] drew more triangles or
+    /// missed fewer blocks than every update before it (the view's front does not fit the memory
+    /// given, so loads evict what the next update needs).
+    Stalled,
+}
+
+/// Updates without a new best (most triangles or fewest misses) after which converging gives up.
+pub const STALL_UPDATES: u64 = 32;
 
 /// What converging the first view took ([`FrameSource::converge`], before frame 0).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Convergence {
-    /// Updates made, and whether the view was complete within the time allowed.
+    /// Updates made, whether the view was complete, and if not why converging stopped.
     pub updates: u64,
     pub complete: bool,
+    pub end: ConvergeEnd,
     /// Wall time, ms (device waits included), and major page faults meanwhile.
     pub ms: f64,
     pub major_faults: u64,

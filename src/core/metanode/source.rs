@@ -5,7 +5,7 @@ use std::time::Instant;
 use super::navigate::{MetaStore, Navigator, PagedStore};
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::flight::frame::{Convergence, Frame, FrameSource, FrameStats};
+use crate::flight::frame::{ConvergeEnd, Convergence, Frame, FrameSource, FrameStats, STALL_UPDATES};
 use crate::format::metanode::MetaNodeFile;
 use crate::mesh::Bounds;
 use crate::pager::device::DeviceStats;
@@ -60,19 +60,30 @@ impl FrameSource for NavSource<'_> {
     }
 
     /// Updates, letting the buffer pool finish its loads between updates, until an update has
-    /// no misses and changes nothing (map and read access: the second update).
+    /// no misses and changes nothing (map and read access: the second update), the time runs
+    /// out, or [`STALL_UPDATES`] updates in a row neither draw more triangles nor miss fewer
+    /// blocks than the best before them.
     fn converge(&mut self, camera: &Camera, tolerance_px: f64, timeout: std::time::Duration) -> Result<Convergence> {
         let deadline = Instant::now() + timeout;
         let mut c = Convergence::default();
+        let (mut most_triangles, mut fewest_misses, mut best_at) = (0, u64::MAX, 0);
         loop {
             let s = self.update(camera, tolerance_px)?;
             c = c.with(&s);
             c.updates += 1;
             if s.misses == 0 && s.splits + s.collapses == 0 && c.updates > 1 {
-                return Ok(Convergence { complete: true, ..c });
+                return Ok(Convergence { complete: true, end: ConvergeEnd::Complete, ..c });
+            }
+            if s.triangles > most_triangles || s.misses < fewest_misses {
+                most_triangles = most_triangles.max(s.triangles);
+                fewest_misses = fewest_misses.min(s.misses);
+                best_at = c.updates;
+            }
+            if c.updates - best_at >= STALL_UPDATES {
+                return Ok(Convergence { complete: false, end: ConvergeEnd::Stalled, ..c });
             }
             if Instant::now() >= deadline {
-                return Ok(c);
+                return Ok(Convergence { complete: false, end: ConvergeEnd::Timeout, ..c });
             }
             if let Some(pool) = self.file.pager().pool() {
                 pool.drain()?;

@@ -695,4 +695,30 @@ mod tests {
         .unwrap();
         assert!(e.to_string().contains("mapped source"), "{e}");
     }
+
+    #[test]
+    fn a_coalesced_pool_read_is_one_request_over_consecutive_blocks() {
+        let (_dir, path, bytes) = file_of(16 * 1024);
+        let table: Arc<dyn BlockTable> =
+            Arc::new(FixedBlocks { first: 0, block_bytes: 1024, end: 16 * 1024, page_bytes: 1024 });
+        let access = Access::Pool { bytes: 16 * 1024 };
+        let io = PoolIo { threads: 1, coalesce_bytes: 4 * 1024 };
+        let pager = Pager::with_io(source::open(&path, access.source_kind()).unwrap(), table, access, io).unwrap();
+        let pool = pager.pool().unwrap();
+        pool.hold(true);
+        // 0, 2, 3 in one request (1 read between them and dropped); 9 alone.
+        for id in [0, 2, 3, 9] {
+            assert!(pool.reference(id, 1));
+        }
+        pool.drain().unwrap();
+        let s = pool.stats();
+        assert_eq!((s.read_requests, s.disk_reads, s.gap_blocks), (2, 5, 1), "{s:?}");
+        assert_eq!(pager.reads().blocks, 5);
+        for id in [0u32, 2, 3, 9] {
+            let e = pager.extent(id).unwrap();
+            let held = pool.get(id).unwrap_or_else(|| panic!("block {id} not loaded"));
+            assert_eq!(held.bytes(), &bytes[e.offset as usize..(e.offset + e.bytes) as usize], "block {id}");
+        }
+        assert!(pool.get(1).is_none(), "a gap block is not installed");
+    }
 }

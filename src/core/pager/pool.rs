@@ -937,6 +937,11 @@ mod tests {
         lag: Option<Duration>,
         fail_on: Option<u32>,
         panic_on: Option<u32>,
+        /// Reads consecutive blocks in one request (`span_bytes` = blocks × block bytes).
+        coalesces: bool,
+        /// Requests made through `load_run`, and the longest run.
+        runs: AtomicU64,
+        longest_run: AtomicU64,
     }
 
     impl BlockLoader for Synthetic {
@@ -963,6 +968,21 @@ mod tests {
             v.resize(WORDS, id);
             Ok(v)
         }
+        fn span_bytes(&self, first: u32, last: u32) -> Option<u64> {
+            self.coalesces.then(|| (last - first + 1) as u64 * BLOCK_BYTES)
+        }
+        fn load_run(&self, first: u32, count: u32, recycled: &mut Vec<Vec<u32>>) -> Result<Vec<Vec<u32>>> {
+            assert!(self.coalesces && count > 1, "a run of {count} from a loader that does not coalesce");
+            self.runs.fetch_add(1, Ordering::Relaxed);
+            self.longest_run.fetch_max(count as u64, Ordering::Relaxed);
+            (first..first + count).map(|id| self.load(id, recycled.pop())).collect()
+        }
+    }
+
+    const BLOCK_BYTES: u64 = WORDS as u64 * 4;
+
+    fn coalescing(threads: usize, blocks: u64) -> PoolIo {
+        PoolIo { threads, coalesce_bytes: blocks * BLOCK_BYTES }
     }
 
     fn content(pool: &BufferPool<Synthetic>, id: u32) -> Option<u32> {
@@ -1144,6 +1164,98 @@ mod tests {
         pool.check_invariants().unwrap();
     }
 
+    #[test]
+    fn coalescing_reads_queued_neighbours_in_one_request_and_drops_the_gap() {
+        let loader = Synthetic { coalesces: true, ..Synthetic::default() };
+        let pool = BufferPool::with_io(loader, 8, coalescing(1, 4)).unwrap();
+        // Queue 10, 11 and 13 while the I/O thread is held: one request reads 10..=13, and 12,
+        // which nobody asked for, is read and dropped.
+        pool.hold(true);
+        for b in [10, 11, 13] {
+            assert!(pool.reference(b, 1));
+        }
+        pool.drain().unwrap();
+        let s = pool.stats();
+        assert_eq!((s.read_requests, s.disk_reads, s.gap_blocks, s.prefetch_queued), (1, 4, 1, 3), "{s:?}");
+        assert_eq!(pool.loader().runs.load(Ordering::Relaxed), 1);
+        assert_eq!(
+            [10, 11, 12, 13].map(|b| content(&pool, b)),
+            [Some(10), Some(11), None, Some(13)],
+            "the wanted blocks are installed, the gap is not"
+        );
+        assert_eq!((pool.counts(10), pool.counts(13)), ((0, 1), (0, 1)));
+        pool.check_invariants().unwrap();
+
+        // 20..=27 queued: the limit of 4 blocks splits them into two requests.
+        pool.hold(true);
+        for b in [10, 11, 13] {
+            assert!(pool.reference(b, -1));
+        }
+        for b in 20..28 {
+            assert!(pool.reference(b, 1));
+        }
+        pool.drain().unwrap();
+        let s = pool.stats();
+        assert_eq!((s.read_requests, s.disk_reads, s.gap_blocks), (3, 12, 1), "{s:?}");
+        assert_eq!(pool.loader().longest_run.load(Ordering::Relaxed), 4);
+        assert!((20..28).all(|b| content(&pool, b) == Some(b)));
+        pool.check_invariants().unwrap();
+    }
+
+    #[test]
+    fn a_coalesced_run_takes_no_more_wanted_blocks_than_free_holders() {
+        let loader = Synthetic { coalesces: true, ..Synthetic::default() };
+        let pool = BufferPool::with_io(loader, 4, coalescing(1, 16)).unwrap();
+        pool.hold(true);
+        for b in 0..6 {
+            assert!(pool.reference(b, 1));
+        }
+        pool.drain().unwrap();
+        // Four holders: one request of 0..=3; 4 and 5 find no holder and are given up unread.
+        let s = pool.stats();
+        assert_eq!((s.read_requests, s.disk_reads, s.prefetch_given_up, s.free), (1, 4, 2, 0), "{s:?}");
+        assert!((0..4).all(|b| content(&pool, b) == Some(b)));
+        pool.check_invariants().unwrap();
+    }
+
+    #[test]
+    fn without_coalescing_every_block_is_its_own_request() {
+        // A loader that could coalesce, a pool told not to (0 bytes), and one that is told to by a
+        // loader that cannot: one request per block either way.
+        for (coalesces, io) in [(true, PoolIo::default()), (false, coalescing(1, 8))] {
+            let pool = BufferPool::with_io(Synthetic { coalesces, ..Synthetic::default() }, 8, io).unwrap();
+            pool.hold(true);
+            for b in 0..5 {
+                assert!(pool.reference(b, 1));
+            }
+            pool.drain().unwrap();
+            let s = pool.stats();
+            assert_eq!((s.read_requests, s.disk_reads, s.gap_blocks), (5, 5, 0), "{coalesces} {io:?}: {s:?}");
+            assert_eq!(pool.loader().runs.load(Ordering::Relaxed), 0);
+        }
+    }
+
+    #[test]
+    fn several_io_threads_read_a_block_once() {
+        let loader = Synthetic { lag: Some(Duration::from_millis(3)), ..Synthetic::default() };
+        let pool = BufferPool::with_io(loader, 64, PoolIo { threads: 4, coalesce_bytes: 0 }).unwrap();
+        // Each block referenced and requested urgently several times while four threads read.
+        for round in 0..3 {
+            for b in 0..40 {
+                if round == 0 {
+                    assert!(pool.reference(b, 1));
+                }
+                let _ = pool.request_urgent(b, Direction::Up);
+            }
+        }
+        pool.drain().unwrap();
+        let s = pool.stats();
+        assert_eq!((s.disk_reads, s.read_requests), (40, 40), "{s:?}");
+        assert!((0..40).all(|b| content(&pool, b) == Some(b)));
+        pool.check_invariants().unwrap();
+        assert!(BufferPool::with_io(Synthetic::default(), 8, PoolIo { threads: 0, coalesce_bytes: 0 }).is_err());
+    }
+
     struct Rng(u64);
     impl Rng {
         fn below(&mut self, n: u64) -> u64 {
@@ -1159,7 +1271,14 @@ mod tests {
     /// references its parent and children; a block is entered only once `get` has it, else an
     /// urgent request goes out. After every step: invariants, the pool's counts equal the model's,
     /// and every active block is still in its holder, unchanged (same `Arc`, content = its id).
-    fn navigate(holders: usize, lag: Option<Duration>, drain_percent: u64, seed: u64, steps: usize) -> PoolStats {
+    fn navigate(
+        holders: usize,
+        io: PoolIo,
+        lag: Option<Duration>,
+        drain_percent: u64,
+        seed: u64,
+        steps: usize,
+    ) -> PoolStats {
         const BLOCKS: u32 = 127;
         let neighbours = |b: u32| {
             let mut n = Vec::with_capacity(3);
@@ -1169,7 +1288,8 @@ mod tests {
             n.extend([2 * b + 1, 2 * b + 2].into_iter().filter(|&c| c < BLOCKS));
             n
         };
-        let pool = BufferPool::new(Synthetic { lag, ..Synthetic::default() }, holders).unwrap();
+        let loader = Synthetic { lag, coalesces: io.coalesce_bytes > 0, ..Synthetic::default() };
+        let pool = BufferPool::with_io(loader, holders, io).unwrap();
         let mut rng = Rng(seed);
         let mut active: BTreeMap<u32, (u32, Arc<Vec<u32>>)> = BTreeMap::new();
         let mut refs = vec![0u32; BLOCKS as usize];
@@ -1242,7 +1362,7 @@ mod tests {
         pool.check_invariants().unwrap();
         let s = pool.stats();
         assert_eq!(s.disk_reads, pool.loader().reads.load(Ordering::Relaxed));
-        eprintln!("K = {holders}, lag {lag:?}: {raced} entries lost to the I/O thread after get; {s:?}");
+        eprintln!("K = {holders}, {io:?}, lag {lag:?}: {raced} entries lost to the I/O thread after get; {s:?}");
         s
     }
 
@@ -1251,15 +1371,21 @@ mod tests {
         let mut total = PoolStats::default();
         let lag = Some(Duration::from_micros(5));
         // Rare drains let the I/O thread fall behind Navigate, the paper's hazard.
-        for (holders, lag, drain_percent, seed) in [
-            (4, None, 8, 0x9e3779b97f4a7c15),
-            (5, lag, 8, 0x2545f4914f6cdd1d),
-            (6, None, 8, 0xdeadbeefcafef00d),
-            (6, lag, 8, 0x1234567887654321),
-            (4, lag, 1, 0x0f1e2d3c4b5a6978),
-            (5, None, 1, 0x8877665544332211),
+        let one = PoolIo::default();
+        for (holders, io, lag, drain_percent, seed) in [
+            (4, one, None, 8, 0x9e3779b97f4a7c15),
+            (5, one, lag, 8, 0x2545f4914f6cdd1d),
+            (6, one, None, 8, 0xdeadbeefcafef00d),
+            (6, one, lag, 8, 0x1234567887654321),
+            (4, one, lag, 1, 0x0f1e2d3c4b5a6978),
+            (5, one, None, 1, 0x8877665544332211),
+            // Several threads and coalesced runs (a node's children are consecutive blocks).
+            (6, coalescing(1, 3), lag, 8, 0x5851f42d4c957f2d),
+            (8, coalescing(4, 1), lag, 8, 0x14057b7ef767814f),
+            (8, coalescing(4, 4), lag, 1, 0x2f6b3c1d9e8a7f05),
+            (5, coalescing(3, 2), None, 8, 0x6a09e667f3bcc908),
         ] {
-            let s = navigate(holders, lag, drain_percent, seed, 20_000);
+            let s = navigate(holders, io, lag, drain_percent, seed, 20_000);
             total.second_chance_hits += s.second_chance_hits;
             total.evictions += s.evictions;
             total.urgent_flushes += s.urgent_flushes;
