@@ -10,7 +10,10 @@ volume (1), a 7200 rpm disk (8) and an object store's first byte (30).
         Virt (map) against Ext (pool) at 1/2, 1/4 and 1/8 of the tree, both under the same
         cgroup cap B + S + margin (S: the navigator's own anonymous memory, measured by an
         uncapped Virt flight), frames paced 40 ms apart: per-frame adaptation ms, Ext/Virt,
-        miss %, device requests.
+        miss %, device requests. [--converge SECONDS] converges the first view before frame 0
+        (and tabulates it); [--coalesce BYTES] [--io-threads N] [--prefetch P] set Ext's reads;
+        [--ext-extra-mb M] gives Ext's pool B + M MiB under the same cap (equal memory: Virt's page
+        cache may use the cap's margin).
     python3 tools/bench_device.py layouts TERRAIN.relief PATH.json [--cap BYTES]
         relief layouts --os under the device: per layout, cold refinement ms per frame next to
         its major faults.
@@ -19,6 +22,9 @@ volume (1), a 7200 rpm disk (8) and an object store's first byte (30).
     python3 tools/bench_device.py plot TREE.rmn... --plot OUT.png
         Two panels from the saved flights of every tree: Virt's time over Ext's (frames after the
         cold first one) and Ext's triangles over Virt's (last ten frames), against latency.
+    python3 tools/bench_device.py converged TREE.rmn... [--out DIR,DIR] [--ext-extra-mb M]
+        From saved `metanode --converge` sweeps: each mode's convergence of the first view, its
+        frames after, and Virt's whole flight (converge + frames) over Ext's.
     python3 tools/bench_device.py report TREE.rmn
         The metanode table again from the saved flights, split into the cold first frame and
         the frames after it (the steady state), with Ext's triangles against Virt's over the
@@ -70,17 +76,26 @@ def run(args, sample_anon=False):
     return out, (peak[0] if sample_anon else None)
 
 
-def fly(tree, path, mode, memory, cap, latency, tolerance, frames_out):
+def fly(tree, path, mode, memory, cap, latency, tolerance, frames_out, a=None):
     args = [RELIEF, "mesh", "fly", tree, "--mode", mode, "--memory", memory, "--cold", "--path", path,
             "--no-render", "--pace", "40", "--tolerance", tolerance, "--json", "--quiet"]
     if cap:
         args += ["--cap", str(cap)]
     if latency is not None:
         args += ["--device-latency", str(latency)]
+    if a is not None and a.converge:
+        args += ["--converge", str(a.converge)]
+    if a is not None and mode == "ext":
+        args += ["--coalesce", a.coalesce, "--io-threads", str(a.io_threads), "--prefetch", a.prefetch]
     out, _ = run(args)
     frames_out.write_text(out)
     s = json.loads(out)["summary"]
+    c = s.get("converge") or {}
     return {
+        "converge_ms": c.get("ms"),
+        "converge_end": c.get("end"),
+        "converge_triangles": c.get("triangles"),
+        "converge_requests": c.get("device_requests"),
         "update_ms": s["update_ms"]["mean"],
         "miss_pct": s["miss_pct"],
         "triangles": s["triangles"]["mean"],
@@ -111,7 +126,8 @@ def metanode(a):
             r = {"fraction": f"{num}/{den}", "budget": b, "cap": cap, "latency_ms": latency}
             for mode in ["virt", "ext"]:
                 tag = f"{tree.stem}-{num}_{den}-{latency}-{mode}.json"
-                r[mode] = fly(tree, path, mode, str(b), cap, latency, a.tolerance, out / tag)
+                memory = b + int(a.ext_extra_mb * 2**20) if mode == "ext" else b
+                r[mode] = fly(tree, path, mode, str(memory), cap, latency, a.tolerance, out / tag, a)
             r["ext_over_virt_speed"] = r["virt"]["update_ms"] / max(r["ext"]["update_ms"], 1e-9)
             rows.append(r)
             print(f"  {num}/{den} {latency} ms: virt {r['virt']['update_ms']:.1f} ms, ext "
@@ -127,6 +143,18 @@ def metanode(a):
               f"{v['major_faults']:.0f} | {e['update_ms']:.1f} | {e['miss_pct']:.1f} | "
               f"{e['triangles'] / max(v['triangles'], 1):.2f} | {e['device_requests']:.0f} | "
               f"{r['ext_over_virt_speed']:.2f} |")
+    if a.converge:
+        print()
+        print("| memory | device ms | Virt converge s | Ext converge s (end) | Ext / Virt converge triangles | "
+              "Virt ms / frame after | Ext ms / frame after | Ext miss % | Ext tris / Virt tris | Virt / Ext |")
+        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+        for r in rows:
+            v, e = r["virt"], r["ext"]
+            print(f"| {r['fraction']} ({r['budget'] / 1e6:.1f} MB) | {r['latency_ms']} | "
+                  f"{v['converge_ms'] / 1e3:.2f} | {e['converge_ms'] / 1e3:.2f} ({e['converge_end']}) | "
+                  f"{e['converge_triangles'] / max(v['converge_triangles'], 1):.2f} | {v['update_ms']:.1f} | "
+                  f"{e['update_ms']:.2f} | {e['miss_pct']:.1f} | {e['triangles'] / max(v['triangles'], 1):.2f} | "
+                  f"{r['ext_over_virt_speed']:.1f} |")
     if a.plot:
         plot_all(a, [tree])
 
@@ -195,6 +223,41 @@ def report(a):
               f"{v_after / max(e_after, 1e-9):.1f} |")
 
 
+def converged(a):
+    """The converged-first-view table from saved `metanode --converge` sweeps (several --out
+    directories, comma-separated, are merged: e.g. fast and slow latencies run apart)."""
+    print("| tree | memory (Ext pool) | device ms | Virt converge s | Ext converge s (end) | "
+          "Ext / Virt converged triangles | Virt ms / frame | Ext ms / frame | Ext miss % | "
+          "Ext / Virt triangles | Virt / Ext per frame | Virt / Ext flight |")
+    print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for f in a.files:
+        tree = Path(f)
+        rows = []
+        for d in a.out.split(","):
+            saved = Path(d) / f"{tree.stem}-metanode.json"
+            if saved.exists():
+                rows += json.loads(saved.read_text())["rows"]
+        order = {f"{n}/{d}": i for i, (n, d) in enumerate([(1, 2), (1, 4), (1, 8)])}
+        rows.sort(key=lambda r: (order.get(r["fraction"], 9), r["latency_ms"]))
+        for r in rows:
+            v, e = r["virt"], r["ext"]
+            if v.get("converge_ms") is None or e.get("converge_ms") is None:
+                continue
+            tag = f"{tree.stem}-{r['fraction'].replace('/', '_')}-{r['latency_ms']}"
+            n = 30
+            for d in a.out.split(","):
+                p = Path(d) / f"{tag}-virt.json"
+                if p.exists():
+                    n = len(frames_of(p))
+            flight = lambda m: m["converge_ms"] + n * m["update_ms"]
+            pool = r["budget"] + int(a.ext_extra_mb * 2**20)
+            print(f"| {tree.stem} | {r['fraction']} ({pool / 1e6:.1f} MB) | {r['latency_ms']:g} | "
+                  f"{v['converge_ms'] / 1e3:.2f} | {e['converge_ms'] / 1e3:.2f} ({e['converge_end']}) | "
+                  f"{e['converge_triangles'] / max(v['converge_triangles'], 1):.2f} | {v['update_ms']:.1f} | "
+                  f"{e['update_ms']:.2f} | {e['miss_pct']:.1f} | {e['triangles'] / max(v['triangles'], 1):.2f} | "
+                  f"{r['ext_over_virt_speed']:.1f} | {flight(v) / max(flight(e), 1e-9):.2f} |")
+
+
 def plot_all(a, trees=None):
     import matplotlib
     matplotlib.use("Agg")
@@ -239,7 +302,7 @@ def plot_all(a, trees=None):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", choices=["metanode", "layouts", "pages", "report", "plot"])
+    p.add_argument("what", choices=["metanode", "layouts", "pages", "report", "plot", "converged"])
     p.add_argument("files", nargs="+")
     p.add_argument("--tolerance", default="8")
     p.add_argument("--margin-mb", type=float, default=4.0)
@@ -249,6 +312,12 @@ def main():
     p.add_argument("--plot")
     p.add_argument("--latencies", help="comma-separated ms (default 0.02,0.1,1,8,30)")
     p.add_argument("--fractions", help="metanode: comma-separated budgets as fractions of the tree (default 1/2,1/4,1/8)")
+    p.add_argument("--converge", type=float, help="metanode: converge the first view for at most SECONDS before frame 0")
+    p.add_argument("--coalesce", default="0", help="metanode: Ext's --coalesce BYTES")
+    p.add_argument("--io-threads", type=int, default=1, help="metanode: Ext's --io-threads N")
+    p.add_argument("--prefetch", default="frontier", help="metanode: Ext's --prefetch paper|parent|frontier")
+    p.add_argument("--ext-extra-mb", type=float, default=0.0,
+                   help="metanode: Ext's pool is B + this many MiB (Virt's page cache may use the cap's margin)")
     a = p.parse_args()
     if a.fractions:
         FRACTIONS[:] = [tuple(int(x) for x in f.split("/")) for f in a.fractions.split(",")]
@@ -258,6 +327,8 @@ def main():
         return report(a)
     if a.what == "plot":
         return plot_all(a)
+    if a.what == "converged":
+        return converged(a)
     if os.geteuid() != 0:
         sys.exit("bench_device: the emulated device needs root (a FUSE mount)")
     {"metanode": metanode, "layouts": layouts, "pages": pages}[a.what](a)

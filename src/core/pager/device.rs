@@ -281,7 +281,8 @@ impl DeviceMount {
             .to_os_string();
         warm(&backing, meta.len()).at(path)?;
         reap_stale_mounts();
-        let dir = tempfile::Builder::new().prefix(MOUNT_PREFIX).tempdir().at(path)?;
+        let prefix = format!("{MOUNT_PREFIX}{}-", std::process::id());
+        let dir = tempfile::Builder::new().prefix(&prefix).tempdir().at(path)?;
         let counters = Arc::new(Counters::default());
         let fs = DeviceFs {
             backing,
@@ -304,7 +305,13 @@ impl DeviceMount {
                 dir.path().display()
             ))
         })?;
-        Ok(DeviceMount { served: dir.path().join(&name), spec, counters, session: Some(session), _dir: dir })
+        let served = dir.path().join(&name);
+        // Open and close the served file once while the server runs: the kernel sends FLUSH on a
+        // close, the server answers "not implemented", and the kernel sends no more. Otherwise a
+        // process killed (say by its memory cap) while the file is open would send FLUSH from its
+        // exit to its own server, already gone, and never finish exiting.
+        drop(File::open(&served).at(&served)?);
+        Ok(DeviceMount { served, spec, counters, session: Some(session), _dir: dir })
     }
 
     /// The served copy of the file.
@@ -336,27 +343,33 @@ impl Drop for DeviceMount {
 /// The mount points' name prefix, in the temporary directory.
 const MOUNT_PREFIX: &str = "relief-device-";
 
-/// Detaches and removes the mounts of relief devices whose server is gone (a process killed by a
+/// Detaches and removes the mounts of relief devices whose process is gone (a process killed by a
 /// memory cap or a signal cannot unmount; its mount point then answers "transport endpoint is not
-/// connected" until unmounted). Best effort; a live mount answers and is left alone.
+/// connected" until unmounted). A mount point is named after its process
+/// (`relief-device-PID-…`), and only mounts whose process no longer exists are touched: looking
+/// into a mount whose server is alive but busy, or exiting, could block.
 fn reap_stale_mounts() {
     let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else { return };
     for entry in entries.flatten() {
-        let is_ours = entry.file_name().to_str().is_some_and(|n| n.starts_with(MOUNT_PREFIX));
-        if !is_ours {
+        let name = entry.file_name();
+        let Some(pid) = name
+            .to_str()
+            .and_then(|n| n.strip_prefix(MOUNT_PREFIX))
+            .and_then(|rest| rest.split_once('-'))
+            .and_then(|(pid, _)| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists() {
             continue;
         }
         let dir = entry.path();
-        let disconnected = matches!(std::fs::metadata(&dir), Err(e) if e.raw_os_error() == Some(libc::ENOTCONN));
-        if !disconnected {
-            continue;
-        }
         let Ok(c_path) = std::ffi::CString::new(dir.as_os_str().as_encoded_bytes()) else { continue };
         // SAFETY: umount2 reads the NUL-terminated path it is given; MNT_DETACH only unlinks the
         // dead mount from the tree.
-        if unsafe { libc::umount2(c_path.as_ptr(), libc::MNT_DETACH) } == 0 {
-            let _ = std::fs::remove_dir(&dir);
-        }
+        // Not mounted any more (EINVAL) is fine too: then only the directory is left.
+        unsafe { libc::umount2(c_path.as_ptr(), libc::MNT_DETACH) };
+        let _ = std::fs::remove_dir(&dir);
     }
 }
 
@@ -493,7 +506,8 @@ mod tests {
     }
 
     /// Not a test on its own: run by `a_killed_server_s_mount_is_reaped` in a child process,
-    /// it mounts a device, prints the mount point and dies without unmounting.
+    /// it mounts a device, opens the served file, prints the mount point and dies without
+    /// unmounting or closing.
     #[test]
     #[ignore]
     fn mount_and_die() {
@@ -502,21 +516,35 @@ mod tests {
         }
         let (_dir, path, _) = file_of(1);
         let mount = DeviceMount::new(&path, DeviceSpec::new(0.0, 1, None).unwrap()).unwrap();
+        let _open = File::open(mount.path()).unwrap();
         println!("MOUNT {}", mount.path().parent().unwrap().display());
         std::process::abort();
     }
 
-    /// A process killed while its device is mounted leaves a disconnected mount behind; the next
-    /// device mounted detaches and removes it.
+    /// A process killed while its device is mounted and its file open finishes exiting (no
+    /// FLUSH is sent to its own server, gone by then) and leaves a disconnected mount behind; the
+    /// next device mounted detaches and removes it.
     #[test]
     fn a_killed_server_s_mount_is_reaped() {
-        let out = std::process::Command::new(std::env::current_exe().unwrap())
+        use std::io::Read;
+        let mut child = std::process::Command::new(std::env::current_exe().unwrap())
             .args(["--exact", "pager::device::tests::mount_and_die", "--ignored", "--nocapture"])
             .env("RELIEF_DEVICE_DIE", "1")
-            .output()
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null())
+            .spawn()
             .unwrap();
-        assert!(!out.status.success(), "the child aborts");
-        let stdout = String::from_utf8_lossy(&out.stdout);
+        let deadline = std::time::Instant::now() + Duration::from_secs(60);
+        let status = loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                break status;
+            }
+            assert!(std::time::Instant::now() < deadline, "the killed child never finished exiting");
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        assert!(!status.success(), "the child aborts");
+        let mut stdout = String::new();
+        child.stdout.take().unwrap().read_to_string(&mut stdout).unwrap();
         let stale = PathBuf::from(
             stdout.lines().find_map(|l| l.strip_prefix("MOUNT ")).unwrap_or_else(|| panic!("child said: {stdout}")),
         );
