@@ -69,6 +69,10 @@ pub enum Command {
         /// Evict the file from the page cache first and turn off readahead (a cold start).
         #[arg(long)]
         cold: bool,
+        /// With --cold: leave the OS's readahead on (a map's fault or a read then brings in the
+        /// pages after it too, as the kernel's readahead window allows).
+        #[arg(long, requires = "cold")]
+        readahead: bool,
         /// Pool: which meta-nodes to prefetch. paper: the parent and all children of every
         /// meta-node in use (El-Sana & Chiang); parent: only the parent; frontier: for every
         /// active node, the blocks its split or its parent's collapse would read.
@@ -209,7 +213,21 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
             let mut source = StaticMesh::new(&m)?;
             super::show::mesh(&mut source, &input, flight, mesh.up, mesh.tolerance, &fly)
         }
-        Command::Fly { file, mode, access, memory, cap, cold, prefetch, io_threads, coalesce, device, mesh, fly } => {
+        Command::Fly {
+            file,
+            mode,
+            access,
+            memory,
+            cap,
+            cold,
+            readahead,
+            prefetch,
+            io_threads,
+            coalesce,
+            device,
+            mesh,
+            fly,
+        } => {
             let device = device.spec()?;
             if !(1..=256).contains(&io_threads) {
                 bail!("--io-threads: expected 1 to 256 I/O threads, got {io_threads}");
@@ -231,7 +249,9 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
                 }
             };
             let meta = MetaNodeFile::open_io(&file, access, device, io)?;
-            if cold {
+            if cold && readahead {
+                meta.pager().evict()?;
+            } else if cold {
                 meta.start_cold()?;
             }
             let prefetch = match prefetch {
