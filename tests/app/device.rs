@@ -72,6 +72,12 @@ fn mesh_fly_virt_waits_for_every_fault_and_ext_for_none() {
         .ends_with("on an emulated device (2 ms a request, queue depth 1)"));
     assert_eq!(total(&plain, "device_requests"), 0.0);
 
+    // With the OS's readahead on, each fault reads a window: fewer requests for the same meshes.
+    let (_, ahead) = both(&["mesh", "fly", "--mode", "virt", "--cold", "--readahead"], &tree, &path);
+    assert_eq!(per_frame(&plain, "triangles"), per_frame(&ahead, "triangles"));
+    let fewer = total(&ahead, "device_requests");
+    assert!(fewer > 0.0 && fewer < 0.5 * requests, "{fewer} requests with readahead, {requests} without");
+
     // Ext never waits: its frames stay fast whatever the device, the pool's reads charged in
     // the background (paced frames give the I/O thread the time a renderer would).
     let (_, ext) = both(&["mesh", "fly", "--mode", "ext", "--memory", "1/8", "--cold", "--pace", "5"], &tree, &path);
