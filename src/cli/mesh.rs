@@ -317,6 +317,18 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
             if memory_bytes == 0 {
                 bail!("--memory must be more than 0 bytes");
             }
+            // A small mesh's fraction can fall below what any build needs: raise it, and say so.
+            let least = relief::metanode::build::least_budget_bytes();
+            let memory_bytes = if memory_bytes < least {
+                eprintln!(
+                    "relief: warning: --memory {memory} is {memory_bytes} bytes, below the least a build needs; \
+                     building in {least} bytes ({})",
+                    fmt_bytes(least)
+                );
+                least
+            } else {
+                memory_bytes
+            };
             let metric = match metric {
                 VdtMetricArg::Length => VdtMetric::Length,
                 VdtMetricArg::Quadric => VdtMetric::Quadric,

@@ -494,6 +494,39 @@ fn bad_memory_budgets_are_refused() {
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "scratch files left behind");
 }
 
+/// A budget below the least a build needs (a small mesh's fraction) is raised to it with a
+/// one-line warning, and the tree is the one a large budget builds.
+#[test]
+fn a_budget_below_the_least_is_raised_with_a_warning() {
+    let dir = scratch();
+    let input = real_mesh("bunny.off");
+    let least = relief::metanode::build::least_budget_bytes();
+    let build = |memory: &str, name: &str| {
+        let out = dir.path().join(name);
+        let o = Command::new(env!("CARGO_BIN_EXE_relief"))
+            .args(["mesh", "build"])
+            .arg(&input)
+            .arg(&out)
+            .args(["--memory", memory, "--quiet", "--json"])
+            .output()
+            .expect("run relief");
+        assert!(o.status.success(), "--memory {memory}: {}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("JSON report");
+        (std::fs::read(&out).unwrap(), String::from_utf8_lossy(&o.stderr).into_owned(), v)
+    };
+    let (tiny, warning, report) = build("2K", "tiny.rmn");
+    assert_eq!(
+        warning,
+        format!(
+            "relief: warning: --memory 2K is 2048 bytes, below the least a build needs; building in {least} bytes (112.0 KiB)\n"
+        )
+    );
+    assert_eq!(report["memory_budget_bytes"].as_u64(), Some(least), "{report}");
+    let (large, quiet, _) = build("4G", "large.rmn");
+    assert!(quiet.is_empty(), "{quiet}");
+    assert!(tiny == large, "the raised build differs from the unlimited one");
+}
+
 #[test]
 fn corrupt_vdt_files_are_one_line_errors() {
     let good = std::fs::read(&armadillo_unlimited().path).unwrap();

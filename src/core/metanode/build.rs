@@ -178,6 +178,12 @@ fn fixed_bytes(budget: u64) -> (u64, u64) {
     (cache, cache + 2 * WRITER_BYTES as u64 + MISC_BYTES)
 }
 
+/// The least memory budget a build accepts (see [`BuildOptions::new`]): redb's smallest cache,
+/// the output buffers, small scratch and one small edge neighbourhood.
+pub fn least_budget_bytes() -> u64 {
+    fixed_bytes(0).1 + SMALLEST_REGION_BYTES
+}
+
 /// Refuses a budget below the fixed part plus the smallest region.
 fn check_budget(budget: u64) -> Result<()> {
     let (cache_bytes, fixed) = fixed_bytes(budget);
