@@ -55,7 +55,7 @@ pub fn headless(
 pub fn print_summary(file: &Path, report: &FlightReport) {
     let s = &report.summary;
     println!(
-        "{} ({}): {} frames at {} x {}, {:.1} fps, frame {:.2} ms, update {:.2} ms, render {:.2} ms (medians), {:.0} triangles and {:.1} splits + collapses per frame (mean), {:.2}% misses, {} pages read, {} major / {} minor page faults, {} uploaded ({})",
+        "{} ({}): {} frames at {} x {}, {:.1} fps, frame {:.2} ms, update {:.2} ms, render {:.2} ms (medians), {:.0} triangles and {:.1} {} per frame (mean), {:.2}% misses, {} pages read, {} major / {} minor page faults, {} uploaded ({})",
         file.display(),
         s.source,
         s.frames,
@@ -67,6 +67,7 @@ pub fn print_summary(file: &Path, report: &FlightReport) {
         s.render_ms.median,
         s.triangles.mean,
         s.splits.mean + s.collapses.mean,
+        s.changes,
         s.miss_pct,
         s.pages_read.total,
         s.major_faults.total,

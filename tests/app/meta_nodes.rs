@@ -195,6 +195,7 @@ fn mesh_build_and_fly_commands() {
         }
         let source = r["summary"]["source"].as_str().unwrap();
         assert!(source.starts_with("meta-node trees"), "{source}");
+        assert_eq!(r["summary"]["changes"], "splits + collapses");
     }
     // Bad input: one line, exit 1.
     let bad = dir.path().join("bad.rmn");

@@ -259,6 +259,18 @@ fn pages_build_and_fly_commands() {
     for key in ["pages_requested", "seek_pages", "update_ms", "frame_ms", "triangles"] {
         assert!(s[key]["mean"].as_f64().is_some_and(|x| x > 0.0), "summary key {key}: {s}");
     }
+    // The stats say what this backend's changes are.
+    assert_eq!(s["changes"], "pages gained + lost");
+    let text = common::relief()
+        .args(["pages", "fly"])
+        .arg(d("bunny.rpg"))
+        .arg("--path")
+        .arg(d("p.json"))
+        .args(["--no-render", "--quiet"])
+        .output()
+        .unwrap();
+    let line = String::from_utf8_lossy(&text.stdout);
+    assert!(line.contains(" pages gained + lost per frame") && !line.contains("splits"), "{line}");
     assert_eq!(std::fs::read_dir(d("frames")).unwrap().count(), 12);
     // The first frame shows the bunny: not only sky.
     let first = image::open(d("frames").join("frame_00000.png")).unwrap().to_rgba8();

@@ -190,6 +190,10 @@ impl FrameSource for PageSource {
         self.file.header().bounds
     }
 
+    fn changes(&self) -> &'static str {
+        "pages gained + lost"
+    }
+
     fn describe(&self) -> String {
         let h = self.file.header();
         format!(

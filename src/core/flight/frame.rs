@@ -69,6 +69,11 @@ pub trait FrameSource {
     fn bounds(&self) -> Bounds;
     /// What the source is, for reports ("terrain, interleaved, map", …).
     fn describe(&self) -> String;
+    /// What [`FrameStats::splits`] and [`FrameStats::collapses`] count for this source, in
+    /// words for reports: nodes split and collapsed by default.
+    fn changes(&self) -> &'static str {
+        "splits + collapses"
+    }
     /// Updates for `camera` until nothing the view needs is missing (a remote source waiting for
     /// its fetches), at most `timeout`; the number of updates, or `None` for a source that never
     /// misses (every update is already complete).
@@ -316,6 +321,8 @@ pub struct FlightSummary {
     pub tolerance_px: f64,
     /// What was flown ([`FrameSource::describe`]).
     pub source: String,
+    /// What `splits` and `collapses` count for it ([`FrameSource::changes`]).
+    pub changes: &'static str,
     /// The device that drew it, or why none did.
     pub adapter: String,
     /// GPU memory kept for the source's data, bytes.
@@ -392,6 +399,7 @@ impl FlightSummary {
             height: options.height_px,
             tolerance_px: options.tolerance_px,
             source,
+            changes: "splits + collapses",
             adapter,
             resident_gpu_bytes: 0,
             miss_pct: pct(total(|f| f.stats.misses), total(|f| f.stats.splits + f.stats.collapses)),
@@ -516,6 +524,7 @@ pub fn fly<'p>(
     };
     let adapter = presenter.as_ref().map_or_else(|| "none (update only)".to_string(), |p| p.adapter());
     let mut summary = FlightSummary::of(&frames, wall_s, options, source.describe(), adapter);
+    summary.changes = source.changes();
     summary.resident_gpu_bytes = presenter.as_ref().map_or(0, |p| p.resident_bytes());
     summary.settle_updates = settle_updates;
     summary.converge = converge;
