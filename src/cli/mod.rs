@@ -276,8 +276,9 @@ pub struct FlyArgs {
     pub pace: f64,
     /// Headless: before frame 0, update the first view until it is complete (nothing it needs is
     /// missing) for at most SECONDS, timed and reported apart from the frames ("converge" in the
-    /// report), so the flight starts from the mesh a still camera would reach. Without it frame 0
-    /// is the first update.
+    /// report), so the flight starts from the mesh a still camera would reach; the same before
+    /// any frame that jumps (the eye moves more than half its distance to the look-at point, or
+    /// the view turns more than 30°: "jumps"). Without it frame 0 is the first update.
     #[arg(long, value_name = "SECONDS", num_args = 0..=1, default_missing_value = "120", requires = "path")]
     pub converge: Option<f64>,
     /// No progress bars.

@@ -91,6 +91,17 @@ pub fn print_summary(file: &Path, report: &FlightReport) {
             }
         );
     }
+    if !s.jumps.is_empty() {
+        let ms: f64 = s.jumps.iter().map(|j| j.convergence.ms).sum();
+        let complete = s.jumps.iter().filter(|j| j.convergence.complete).count();
+        println!(
+            "  {} jumps converged before their frames ({} complete), {:.1} ms in all, first at frame {}",
+            s.jumps.len(),
+            complete,
+            ms,
+            s.jumps[0].frame
+        );
+    }
     if s.pages_requested.total > 0.0 {
         println!(
             "  pages: {:.1} requested per frame (of {:.1} named by the k-d tree), seek {:.1} pages, fetch {:.2} ms (reads {:.2} ms) per frame (means)",

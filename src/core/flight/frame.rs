@@ -109,6 +109,27 @@ pub enum ConvergeEnd {
 /// Updates without a new best (most triangles or fewest misses) after which converging gives up.
 pub const STALL_UPDATES: u64 = 32;
 
+/// A jump's convergence: before frame `frame` was updated.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct JumpConvergence {
+    pub frame: usize,
+    pub convergence: Convergence,
+}
+
+/// Whether the view jumps from camera `a` to `b`: the eye moves more than half its distance to
+/// what it looks at, or the view direction turns by more than 30°. Steady paths (an orbit of 30
+/// frames turns 12° a frame) stay below both; a cut to another place does not.
+pub fn is_jump(a: &Camera, b: &Camera) -> bool {
+    let (da, db) = (a.look_at_world - a.eye_in_world, b.look_at_world - b.eye_in_world);
+    let scale = da.length().max(db.length());
+    if !(scale > 0.0) {
+        return false;
+    }
+    let moved = a.eye_in_world.distance(b.eye_in_world) > 0.5 * scale;
+    let turned = da.normalize_or_zero().dot(db.normalize_or_zero()) < 30f64.to_radians().cos();
+    moved || turned
+}
+
 /// What converging the first view took ([`FrameSource::converge`], before frame 0).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Convergence {
@@ -374,6 +395,9 @@ pub struct FlightSummary {
     pub settle_updates: Option<u64>,
     /// The first view converged before frame 0 (`null`: it was not asked for).
     pub converge: Option<Convergence>,
+    /// Frames after a jump ([`is_jump`]) converged before their update, with what it took
+    /// (with a converge timeout only).
+    pub jumps: Vec<JumpConvergence>,
     pub final_triangles: u64,
     pub final_digest: String,
 }
@@ -437,6 +461,7 @@ impl FlightSummary {
             net_bytes: total(|f| f.stats.net_bytes),
             settle_updates: None,
             converge: None,
+            jumps: Vec::new(),
             final_triangles: 0,
             final_digest: String::new(),
         }
@@ -465,19 +490,22 @@ pub fn fly<'p>(
     if let (Some(dir), Some(_)) = (&options.frames_out, &presenter) {
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     }
+    // Timed, with the faults it took and the triangles it reached.
+    let converge_at = |source: &mut dyn FrameSource, camera: &Camera, timeout| -> Result<Convergence> {
+        let (t0, faults0) = (Instant::now(), crate::sys::mem::page_faults());
+        let c = source.converge(camera, options.tolerance_px, timeout)?;
+        Ok(Convergence {
+            ms: t0.elapsed().as_secs_f64() * 1e3,
+            major_faults: crate::sys::mem::page_faults().0 - faults0.0,
+            triangles: source.frame().triangle_count(),
+            ..c
+        })
+    };
     let converge = match (options.converge_timeout, cameras.first()) {
-        (Some(timeout), Some(first)) => {
-            let (t0, faults0) = (Instant::now(), crate::sys::mem::page_faults());
-            let c = source.converge(first, options.tolerance_px, timeout)?;
-            Some(Convergence {
-                ms: t0.elapsed().as_secs_f64() * 1e3,
-                major_faults: crate::sys::mem::page_faults().0 - faults0.0,
-                triangles: source.frame().triangle_count(),
-                ..c
-            })
-        }
+        (Some(timeout), Some(first)) => Some(converge_at(&mut *source, first, timeout)?),
         _ => None,
     };
+    let mut jumps = Vec::new();
     let bar = options.progress.bar("fly", cameras.len() as u64, "frames");
     let mut frames = Vec::with_capacity(cameras.len());
     let t_all = Instant::now();
@@ -486,6 +514,10 @@ pub fn fly<'p>(
         crate::sys::cancel::check()?;
         if let Some(wait) = next_start.checked_duration_since(Instant::now()) {
             std::thread::sleep(wait);
+        }
+        if let (Some(timeout), true) = (options.converge_timeout, k > 0 && is_jump(&cameras[k - 1], camera)) {
+            // After a cut the view starts over, as frame 0 does; timed apart from the frame.
+            jumps.push(JumpConvergence { frame: k, convergence: converge_at(&mut *source, camera, timeout)? });
         }
         next_start = Instant::now() + std::time::Duration::from_secs_f64(options.pace_ms.max(0.0) / 1e3);
         let t0 = Instant::now();
@@ -528,6 +560,7 @@ pub fn fly<'p>(
     summary.resident_gpu_bytes = presenter.as_ref().map_or(0, |p| p.resident_bytes());
     summary.settle_updates = settle_updates;
     summary.converge = converge;
+    summary.jumps = jumps;
     let last = source.frame();
     summary.final_triangles = last.triangle_count();
     summary.final_digest = format!("{:016x}", last.digest());
