@@ -122,7 +122,7 @@ pub struct JumpConvergence {
 pub fn is_jump(a: &Camera, b: &Camera) -> bool {
     let (da, db) = (a.look_at_world - a.eye_in_world, b.look_at_world - b.eye_in_world);
     let scale = da.length().max(db.length());
-    if !(scale > 0.0) {
+    if scale.is_nan() || scale <= 0.0 {
         return false;
     }
     let moved = a.eye_in_world.distance(b.eye_in_world) > 0.5 * scale;
