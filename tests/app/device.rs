@@ -29,6 +29,17 @@ fn per_frame(r: &Value, key: &str) -> Vec<Value> {
 
 const LATENCY_MS: f64 = 2.0;
 
+/// The bunny's meta-node tree, built in half its size, as `dir/bunny.rmn`.
+fn bunny_tree(dir: &Path) -> std::path::PathBuf {
+    let tree = dir.join("bunny.rmn");
+    ok(common::relief()
+        .args(["mesh", "build"])
+        .arg(common::mesh("bunny.off"))
+        .arg(&tree)
+        .args(["--memory", "1/2", "--quiet"]));
+    tree
+}
+
 /// The flight of `args` on `file`, without and with a device of [`LATENCY_MS`].
 fn both(args: &[&str], file: &Path, path: &Path) -> (Value, Value) {
     let run = |device: &[&str]| {
@@ -47,12 +58,7 @@ fn both(args: &[&str], file: &Path, path: &Path) -> (Value, Value) {
 #[test]
 fn mesh_fly_virt_waits_for_every_fault_and_ext_for_none() {
     let dir = tempfile::tempdir().unwrap();
-    let tree = dir.path().join("bunny.rmn");
-    ok(common::relief()
-        .args(["mesh", "build"])
-        .arg(common::mesh("bunny.off"))
-        .arg(&tree)
-        .args(["--memory", "1/2", "--quiet"]));
+    let tree = bunny_tree(dir.path());
     let path = dir.path().join("orbit.json");
     common::make_path("orbit", &tree, 8, &path);
 
@@ -172,12 +178,7 @@ fn layouts_os_runs_report_time_under_the_device() {
 #[test]
 fn converging_first_makes_frame_0_as_fine_as_a_still_camera_would_get() {
     let dir = tempfile::tempdir().unwrap();
-    let tree = dir.path().join("bunny.rmn");
-    ok(common::relief()
-        .args(["mesh", "build"])
-        .arg(common::mesh("bunny.off"))
-        .arg(&tree)
-        .args(["--memory", "1/2", "--quiet"]));
+    let tree = bunny_tree(dir.path());
     let path = dir.path().join("orbit.json");
     common::make_path("orbit", &tree, 4, &path);
     let fly = |args: &[&str]| {
@@ -214,12 +215,7 @@ fn converging_first_makes_frame_0_as_fine_as_a_still_camera_would_get() {
 #[test]
 fn a_jump_in_the_path_is_converged_before_its_frame() {
     let dir = tempfile::tempdir().unwrap();
-    let tree = dir.path().join("bunny.rmn");
-    ok(common::relief()
-        .args(["mesh", "build"])
-        .arg(common::mesh("bunny.off"))
-        .arg(&tree)
-        .args(["--memory", "1/2", "--quiet"]));
+    let tree = bunny_tree(dir.path());
     let orbit = dir.path().join("orbit.json");
     common::make_path("orbit", &tree, 30, &orbit);
     let cameras: Vec<Value> = serde_json::from_slice(&std::fs::read(&orbit).unwrap()).unwrap();
