@@ -310,28 +310,53 @@ impl BlockLoader for SourceLoader {
     }
 
     fn load_run(&self, first: u32, count: u32, recycled: &mut Vec<BlockBuf>) -> Result<Vec<BlockBuf>> {
-        let last = first + count.saturating_sub(1);
-        let (Some(span), Some(a)) = (self.span_bytes(first, last), self.table.extent(first)) else {
+        if count == 0 || self.span_bytes(first, first + (count - 1)).is_none() {
             return (first..first + count).map(|id| self.load(id, recycled.pop())).collect();
-        };
-        // One request for the whole span, then each block copied out of it.
-        let mut bytes = vec![0u8; span as usize];
-        self.source.read_at(a.offset, &mut bytes)?;
-        let mut blocks = Vec::with_capacity(count as usize);
-        let mut read = 0;
-        for id in first..=last {
-            let e = extent_of(&*self.source, &*self.table, id)?;
-            let mut buf = recycled.pop().unwrap_or_default();
-            buf.resize(e.bytes as usize);
-            let at = (e.offset - a.offset) as usize;
-            buf.bytes_mut().copy_from_slice(&bytes[at..at + e.bytes as usize]);
-            report(&self.observer, e);
-            read += e.bytes;
-            blocks.push(buf);
         }
-        self.reads.add(&*self.table, count as u64, read);
+        // One request for the whole span, then each block copied out of it.
+        let mut span = BlockBuf::default();
+        let mut blocks = Vec::with_capacity(count as usize);
+        read_span(&*self.source, &*self.table, &self.reads, &self.observer, first, count, &mut span, |_, bytes| {
+            let mut buf = recycled.pop().unwrap_or_default();
+            buf.resize(bytes.len());
+            buf.bytes_mut().copy_from_slice(bytes);
+            blocks.push(buf);
+            Ok(())
+        })?;
         Ok(blocks)
     }
+}
+
+/// Reads blocks `first..first + count` (`count ≥ 1`, in file order) in one request, from the
+/// first block's start to the last one's end, into `span`; counts the span's bytes in `reads`,
+/// reports each block to the observer and hands it to `f`. Returns the time the read took
+/// (not counting `f`).
+#[allow(clippy::too_many_arguments)]
+fn read_span(
+    source: &dyn Source,
+    table: &dyn BlockTable,
+    reads: &ReadCounter,
+    observer: &ObserverSlot,
+    first: u32,
+    count: u32,
+    span: &mut BlockBuf,
+    mut f: impl FnMut(u32, &[u8]) -> Result<()>,
+) -> Result<Duration> {
+    let started = Instant::now();
+    let start = extent_of(source, table, first)?;
+    let last = extent_of(source, table, first + (count - 1))?;
+    let end = last.offset + last.bytes;
+    span.resize((end - start.offset) as usize);
+    source.read_at(start.offset, span.bytes_mut())?;
+    let read = started.elapsed();
+    reads.add(table, count as u64, end - start.offset);
+    for id in first..first + count {
+        let e = extent_of(source, table, id)?;
+        report(observer, e);
+        let at = (e.offset - start.offset) as usize;
+        f(id, &span.bytes()[at..at + e.bytes as usize])?;
+    }
+    Ok(read)
 }
 
 fn extent_of(source: &dyn Source, table: &dyn BlockTable, id: u32) -> Result<Extent> {
@@ -513,23 +538,7 @@ impl Pager {
             return Ok(Duration::ZERO);
         }
         match &self.mode {
-            Mode::Read(reads) => {
-                let started = Instant::now();
-                let start = self.extent(first)?;
-                let last = self.extent(first + (count - 1))?;
-                let end = last.offset + last.bytes;
-                buf.resize((end - start.offset) as usize);
-                self.source.read_at(start.offset, buf.bytes_mut())?;
-                let read = started.elapsed();
-                reads.add(&*self.table, count as u64, end - start.offset);
-                for id in first..first + count {
-                    let e = self.extent(id)?;
-                    report(&self.observer, e);
-                    let at = (e.offset - start.offset) as usize;
-                    f(id, &buf.bytes()[at..at + e.bytes as usize])?;
-                }
-                Ok(read)
-            }
+            Mode::Read(reads) => read_span(&*self.source, &*self.table, reads, &self.observer, first, count, buf, f),
             Mode::Map => {
                 for id in first..first + count {
                     let b = self.block(id)?;
