@@ -87,7 +87,7 @@ pub trait FrameSource {
     /// triangles). The default, for sources whose every update is complete: one update.
     fn converge(&mut self, camera: &Camera, tolerance_px: f64, _timeout: std::time::Duration) -> Result<Convergence> {
         let s = self.update(camera, tolerance_px)?;
-        Ok(Convergence { updates: 1, complete: true, end: ConvergeEnd::Complete, ..Convergence::default() }.with(&s))
+        Ok(Convergence { updates: 1, ..Convergence::default() }.with(&s).ended(ConvergeEnd::Complete))
     }
 }
 
@@ -149,6 +149,12 @@ pub struct Convergence {
 }
 
 impl Convergence {
+    /// How converging stopped: sets [`end`](Self::end) and `complete` (whether it is
+    /// [`ConvergeEnd::Complete`]) together.
+    pub fn ended(self, end: ConvergeEnd) -> Convergence {
+        Convergence { complete: end == ConvergeEnd::Complete, end, ..self }
+    }
+
     /// Adds one update's reads.
     pub fn with(mut self, s: &FrameStats) -> Convergence {
         self.pages_read += s.pages_read;

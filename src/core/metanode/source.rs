@@ -72,7 +72,7 @@ impl FrameSource for NavSource<'_> {
             c = c.with(&s);
             c.updates += 1;
             if s.misses == 0 && s.splits + s.collapses == 0 && c.updates > 1 {
-                return Ok(Convergence { complete: true, end: ConvergeEnd::Complete, ..c });
+                return Ok(c.ended(ConvergeEnd::Complete));
             }
             if s.triangles > most_triangles || s.misses < fewest_misses {
                 most_triangles = most_triangles.max(s.triangles);
@@ -80,10 +80,10 @@ impl FrameSource for NavSource<'_> {
                 best_at = c.updates;
             }
             if c.updates - best_at >= STALL_UPDATES {
-                return Ok(Convergence { complete: false, end: ConvergeEnd::Stalled, ..c });
+                return Ok(c.ended(ConvergeEnd::Stalled));
             }
             if Instant::now() >= deadline {
-                return Ok(Convergence { complete: false, end: ConvergeEnd::Timeout, ..c });
+                return Ok(c.ended(ConvergeEnd::Timeout));
             }
             if let Some(pool) = self.file.pager().pool() {
                 pool.drain()?;
