@@ -234,16 +234,20 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
             }
             let io =
                 relief::pager::PoolIo { threads: io_threads, coalesce_bytes: parse_bytes("--coalesce", &coalesce)? };
-            let pooled = !matches!((mode, access.as_deref()), (Some(NavMode::Virt), _) | (None, Some("map" | "read")));
-            if !pooled && io != relief::pager::PoolIo::default() {
+            // Map or read access; `None`: the pool, sized once the tree's size is known.
+            let unpooled = match (mode, access.as_deref()) {
+                (Some(NavMode::Virt), _) | (None, Some("map")) => Some(Access::Map),
+                (None, Some("read")) => Some(Access::Read),
+                _ => None,
+            };
+            if unpooled.is_some() && io != relief::pager::PoolIo::default() {
                 bail!("--io-threads and --coalesce apply to pool access (--mode ext or --access pool) only");
             }
             let flight = fly.check()?;
             let cap_bytes = cap.as_deref().map(|c| parse_bytes("--cap", c)).transpose()?;
-            let access = match (mode, access.as_deref()) {
-                (Some(NavMode::Virt), _) | (None, Some("map")) => Access::Map,
-                (None, Some("read")) => Access::Read,
-                _ => {
+            let access = match unpooled {
+                Some(access) => access,
+                None => {
                     let tree = MetaNodeFile::open(&file)?.tree_bytes();
                     Access::Pool { bytes: parse_memory("--memory", &memory, tree)? }
                 }
