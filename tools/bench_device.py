@@ -145,16 +145,7 @@ def metanode(a):
               f"{r['ext_over_virt_speed']:.2f} |")
     if a.converge:
         print()
-        print("| memory | device ms | Virt converge s | Ext converge s (end) | Ext / Virt converge triangles | "
-              "Virt ms / frame after | Ext ms / frame after | Ext miss % | Ext tris / Virt tris | Virt / Ext |")
-        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-        for r in rows:
-            v, e = r["virt"], r["ext"]
-            print(f"| {r['fraction']} ({r['budget'] / 1e6:.1f} MB) | {r['latency_ms']} | "
-                  f"{v['converge_ms'] / 1e3:.2f} | {e['converge_ms'] / 1e3:.2f} ({e['converge_end']}) | "
-                  f"{e['converge_triangles'] / max(v['converge_triangles'], 1):.2f} | {v['update_ms']:.1f} | "
-                  f"{e['update_ms']:.2f} | {e['miss_pct']:.1f} | {e['triangles'] / max(v['triangles'], 1):.2f} | "
-                  f"{r['ext_over_virt_speed']:.1f} |")
+        converged_table([tree], [out], a.ext_extra_mb)
     if a.plot:
         plot_all(a, [tree])
 
@@ -226,15 +217,18 @@ def report(a):
 def converged(a):
     """The converged-first-view table from saved `metanode --converge` sweeps (several --out
     directories, comma-separated, are merged: e.g. fast and slow latencies run apart)."""
+    converged_table([Path(f) for f in a.files], [Path(d) for d in a.out.split(",")], a.ext_extra_mb)
+
+
+def converged_table(trees, outs, ext_extra_mb):
     print("| tree | memory (Ext pool) | device ms | Virt converge s | Ext converge s (end) | "
           "Ext / Virt converged triangles | Virt ms / frame | Ext ms / frame | Ext miss % | "
           "Ext / Virt triangles | Virt / Ext per frame | Virt / Ext flight |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for f in a.files:
-        tree = Path(f)
+    for tree in trees:
         rows = []
-        for d in a.out.split(","):
-            saved = Path(d) / f"{tree.stem}-metanode.json"
+        for d in outs:
+            saved = d / f"{tree.stem}-metanode.json"
             if saved.exists():
                 rows += json.loads(saved.read_text())["rows"]
         order = {f"{n}/{d}": i for i, (n, d) in enumerate([(1, 2), (1, 4), (1, 8)])}
@@ -245,12 +239,12 @@ def converged(a):
                 continue
             tag = f"{tree.stem}-{r['fraction'].replace('/', '_')}-{r['latency_ms']}"
             n = 30
-            for d in a.out.split(","):
-                p = Path(d) / f"{tag}-virt.json"
+            for d in outs:
+                p = d / f"{tag}-virt.json"
                 if p.exists():
                     n = len(frames_of(p))
             flight = lambda m: m["converge_ms"] + n * m["update_ms"]
-            pool = r["budget"] + int(a.ext_extra_mb * 2**20)
+            pool = r["budget"] + int(ext_extra_mb * 2**20)
             print(f"| {tree.stem} | {r['fraction']} ({pool / 1e6:.1f} MB) | {r['latency_ms']:g} | "
                   f"{v['converge_ms'] / 1e3:.2f} | {e['converge_ms'] / 1e3:.2f} ({e['converge_end']}) | "
                   f"{e['converge_triangles'] / max(v['converge_triangles'], 1):.2f} | {v['update_ms']:.1f} | "
