@@ -29,6 +29,18 @@ fn per_frame(r: &Value, key: &str) -> Vec<Value> {
 
 const LATENCY_MS: f64 = 2.0;
 
+/// `relief mesh fly TREE --tolerance 8 --no-render --json --path PATH ARGS…`, which must succeed.
+fn mesh_fly_at_8px(tree: &Path, path: &Path, args: &[&str]) -> Value {
+    json_of(
+        common::relief()
+            .args(["mesh", "fly"])
+            .arg(tree)
+            .args(["--tolerance", "8", "--no-render", "--json", "--quiet", "--path"])
+            .arg(path)
+            .args(args),
+    )
+}
+
 /// The bunny's meta-node tree, built in half its size, as `dir/bunny.rmn`.
 fn bunny_tree(dir: &Path) -> std::path::PathBuf {
     let tree = dir.join("bunny.rmn");
@@ -181,16 +193,7 @@ fn converging_first_makes_frame_0_as_fine_as_a_still_camera_would_get() {
     let tree = bunny_tree(dir.path());
     let path = dir.path().join("orbit.json");
     common::make_path("orbit", &tree, 4, &path);
-    let fly = |args: &[&str]| {
-        json_of(
-            common::relief()
-                .args(["mesh", "fly"])
-                .arg(&tree)
-                .args(["--tolerance", "8", "--no-render", "--json", "--quiet", "--path"])
-                .arg(&path)
-                .args(args),
-        )
-    };
+    let fly = |args: &[&str]| mesh_fly_at_8px(&tree, &path, args);
     let triangles_at_0 = |r: &Value| r["frames"][0]["triangles"].as_f64().unwrap();
     let still = triangles_at_0(&fly(&["--mode", "virt"]));
     assert!(still > 1000.0, "{still}");
@@ -228,16 +231,7 @@ fn a_jump_in_the_path_is_converged_before_its_frame() {
     };
     let picked: Vec<Value> = vec![at(0, 4.0), at(1, 4.0), at(2, 4.0), at(15, 0.6), at(16, 0.6), at(17, 0.6)];
     std::fs::write(&cut, serde_json::to_vec(&picked).unwrap()).unwrap();
-    let fly = |path: &Path, args: &[&str]| {
-        json_of(
-            common::relief()
-                .args(["mesh", "fly"])
-                .arg(&tree)
-                .args(["--tolerance", "8", "--no-render", "--json", "--quiet", "--path"])
-                .arg(path)
-                .args(args),
-        )
-    };
+    let fly = |path: &Path, args: &[&str]| mesh_fly_at_8px(&tree, path, args);
     let ext = ["--mode", "ext", "--memory", "16M", "--device-latency", "2", "--converge", "120"];
     let r = fly(&cut, &ext);
     let jumps = r["summary"]["jumps"].as_array().unwrap();

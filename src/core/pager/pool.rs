@@ -1164,17 +1164,23 @@ mod tests {
         pool.check_invariants().unwrap();
     }
 
+    /// References `blocks` while the I/O thread is held, so their prefetches are all queued
+    /// before any is read, then drains.
+    fn prefetch_held(pool: &BufferPool<Synthetic>, blocks: impl IntoIterator<Item = u32>) {
+        pool.hold(true);
+        for b in blocks {
+            assert!(pool.reference(b, 1));
+        }
+        pool.drain().unwrap();
+    }
+
     #[test]
     fn coalescing_reads_queued_neighbours_in_one_request_and_drops_the_gap() {
         let loader = Synthetic { coalesces: true, ..Synthetic::default() };
         let pool = BufferPool::with_io(loader, 8, coalescing(1, 4)).unwrap();
-        // Queue 10, 11 and 13 while the I/O thread is held: one request reads 10..=13, and 12,
-        // which nobody asked for, is read and dropped.
-        pool.hold(true);
-        for b in [10, 11, 13] {
-            assert!(pool.reference(b, 1));
-        }
-        pool.drain().unwrap();
+        // Queue 10, 11 and 13: one request reads 10..=13, and 12, which nobody asked for, is read
+        // and dropped.
+        prefetch_held(&pool, [10, 11, 13]);
         let s = pool.stats();
         assert_eq!((s.read_requests, s.disk_reads, s.gap_blocks, s.prefetch_queued), (1, 4, 1, 3), "{s:?}");
         assert_eq!(pool.loader().runs.load(Ordering::Relaxed), 1);
@@ -1187,14 +1193,10 @@ mod tests {
         pool.check_invariants().unwrap();
 
         // 20..=27 queued: the limit of 4 blocks splits them into two requests.
-        pool.hold(true);
         for b in [10, 11, 13] {
             assert!(pool.reference(b, -1));
         }
-        for b in 20..28 {
-            assert!(pool.reference(b, 1));
-        }
-        pool.drain().unwrap();
+        prefetch_held(&pool, 20..28);
         let s = pool.stats();
         assert_eq!((s.read_requests, s.disk_reads, s.gap_blocks), (3, 12, 1), "{s:?}");
         assert_eq!(pool.loader().longest_run.load(Ordering::Relaxed), 4);
@@ -1206,11 +1208,7 @@ mod tests {
     fn a_coalesced_run_takes_no_more_wanted_blocks_than_free_holders() {
         let loader = Synthetic { coalesces: true, ..Synthetic::default() };
         let pool = BufferPool::with_io(loader, 4, coalescing(1, 16)).unwrap();
-        pool.hold(true);
-        for b in 0..6 {
-            assert!(pool.reference(b, 1));
-        }
-        pool.drain().unwrap();
+        prefetch_held(&pool, 0..6);
         // Four holders: one request of 0..=3; 4 and 5 find no holder and are given up unread.
         let s = pool.stats();
         assert_eq!((s.read_requests, s.disk_reads, s.prefetch_given_up, s.free), (1, 4, 2, 0), "{s:?}");
@@ -1224,11 +1222,7 @@ mod tests {
         // loader that cannot: one request per block either way.
         for (coalesces, io) in [(true, PoolIo::default()), (false, coalescing(1, 8))] {
             let pool = BufferPool::with_io(Synthetic { coalesces, ..Synthetic::default() }, 8, io).unwrap();
-            pool.hold(true);
-            for b in 0..5 {
-                assert!(pool.reference(b, 1));
-            }
-            pool.drain().unwrap();
+            prefetch_held(&pool, 0..5);
             let s = pool.stats();
             assert_eq!((s.read_requests, s.disk_reads, s.gap_blocks), (5, 5, 0), "{coalesces} {io:?}: {s:?}");
             assert_eq!(pool.loader().runs.load(Ordering::Relaxed), 0);
