@@ -28,6 +28,9 @@ struct Frame {
     valid_window: vec4<f32>,
     // The height cache: (1 when heights come from it, else 0; tile cells per side T; levels; 0).
     cache: vec4<u32>,
+    // Nodata: (style: 0 drawn as the filled heights, 1 not drawn, 2 water at 0 m; 1 when the
+    // void mask below is the file's; 0; 0).
+    nodata: vec4<u32>,
 };
 
 @group(0) @binding(0) var<uniform> frame: Frame;
@@ -36,6 +39,30 @@ struct Frame {
 // The cache's table (src/core/heightcache.rs): per level its first entry (0..16) and tiles per
 // side (16..32), then one entry per tile: 0 when absent, else slot + 1 | fade << 24.
 @group(0) @binding(2) var<storage, read> cache_table: array<u32>;
+// The terrain file's void mask: a bit per post of the valid window, rows from the south, least
+// significant bit first (src/core/format/terrain.rs, `VoidMask`).
+@group(0) @binding(3) var<storage, read> void_mask: array<u32>;
+
+// Whether post (x, y) was nodata in the DEM (padding and posts outside the grid are not).
+fn post_is_void(x: i32, y: i32) -> bool {
+    if (frame.nodata.y == 0u) {
+        return false;
+    }
+    let lo = vec2<i32>(frame.valid_window.xy);
+    let hi = vec2<i32>(frame.valid_window.zw);
+    if (x < lo.x || y < lo.y || x > hi.x || y > hi.y) {
+        return false;
+    }
+    let i = u32(y - lo.y) * u32(hi.x - lo.x + 1) + u32(x - lo.x);
+    return ((void_mask[i >> 5u] >> (i & 31u)) & 1u) == 1u;
+}
+
+// Whether the post nearest a grid position was nodata: a void post owns the square of half a
+// spacing around it.
+fn void_at(grid: vec2<f32>) -> bool {
+    let p = vec2<i32>(floor(grid + vec2<f32>(0.5)));
+    return post_is_void(p.x, p.y);
+}
 
 // Where a surface reads its posts: level `level` (every 2^level-th post), from the resident grid
 // (slot < 0) or from a cache slot whose texel (0, 0) is level post `origin`.
@@ -84,7 +111,12 @@ struct VertexOut {
 };
 
 fn vertex_at(grid: vec2<u32>, z_m: f32, towards_eye: f32) -> VertexOut {
-    let world = vec3<f32>(f32(grid.x) * frame.world_from_grid.x, f32(grid.y) * frame.world_from_grid.y, z_m);
+    var z = z_m;
+    // Nodata drawn as sea: its posts sit at 0 m (their filled heights only serve the hierarchy).
+    if (frame.nodata.x == 2u && post_is_void(i32(grid.x), i32(grid.y))) {
+        z = 0.0;
+    }
+    let world = vec3<f32>(f32(grid.x) * frame.world_from_grid.x, f32(grid.y) * frame.world_from_grid.y, z);
     // Subtract in f32 before projecting: keeps precision near the eye on large terrains.
     let rel = (world - frame.eye_in_world.xyz) * towards_eye;
     var out: VertexOut;
@@ -258,9 +290,22 @@ fn shade(s: Surface, rel: vec3<f32>) -> vec3<f32> {
     return mix(lit, sky(rel), fog);
 }
 
-// Padding replicates the DEM's edges out to the 2^n + 1 grid: not terrain, so not drawn.
+// Padding replicates the DEM's edges out to the 2^n + 1 grid: not terrain, so not drawn; nor are
+// the DEM's nodata posts, unless asked to be drawn as sea or as their filled heights.
 fn outside_dem(grid: vec2<f32>) -> bool {
-    return any(grid < frame.valid_window.xy) || any(grid > frame.valid_window.zw);
+    let padding = any(grid < frame.valid_window.xy) || any(grid > frame.valid_window.zw);
+    return padding || (frame.nodata.x == 1u && void_at(grid));
+}
+
+// The surface under a fragment, or calm shallow water where nodata is drawn as sea.
+fn drawn_surface(grid: vec2<f32>) -> Surface {
+    if (frame.nodata.x == 2u && void_at(grid)) {
+        var s: Surface;
+        s.height_m = -0.5;
+        s.normal = vec3<f32>(0.0, 0.0, 1.0);
+        return s;
+    }
+    return surface(grid);
 }
 
 @fragment
@@ -268,7 +313,7 @@ fn fs_terrain(in: VertexOut) -> @location(0) vec4<f32> {
     if (outside_dem(in.grid)) {
         discard;
     }
-    return vec4<f32>(shade(surface(in.grid), in.rel), 1.0);
+    return vec4<f32>(shade(drawn_surface(in.grid), in.rel), 1.0);
 }
 
 @fragment
@@ -292,7 +337,7 @@ fn fs_probe(in: VertexOut) -> Probe {
     if (outside_dem(in.grid)) {
         discard;
     }
-    let s = surface(in.grid);
+    let s = drawn_surface(in.grid);
     var out: Probe;
     out.position = vec4<f32>(in.grid, s.height_m, in.rel.z + frame.eye_in_world.z);
     if (frame.flags == 1u) {

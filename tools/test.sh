@@ -14,6 +14,8 @@ need=()
   need+=(mesa-vulkan-drivers libvulkan1)
 command -v xvfb-run >/dev/null || need+=(xvfb xauth)
 command -v xdotool >/dev/null || need+=(xdotool)
+# The coordinate-system tests compare with GDAL's own reading (gdalinfo, gdal_translate).
+command -v gdalinfo >/dev/null || need+=(gdal-bin)
 if [ ${#need[@]} -gt 0 ] && command -v apt-get >/dev/null; then
   sudo=""; [ "$(id -u)" -eq 0 ] || sudo="sudo"
   echo "tools/test.sh: installing ${need[*]}" >&2

@@ -6,15 +6,19 @@ use std::process::ExitCode;
 use anyhow::bail;
 use relief::dem::DemFormat;
 use relief::layout::LayoutKind;
-use relief::preprocess::convert::{convert, ConvertOptions};
+use relief::preprocess::convert::{convert_many, ConvertOptions};
 
 use super::{check_output_file, format_parser, layout_parser, print_json, progress};
 
 #[derive(clap::Args)]
 pub struct Args {
     /// DEM to read: GeoTIFF, PNG (16-bit gray, Terrain-RGB, Terrarium), OpenEXR, SRTM .hgt or
-    /// ESRI ASCII grid; detected from content and extension unless --format is given.
-    pub input: PathBuf,
+    /// ESRI ASCII grid; detected from content and extension unless --format is given. Several
+    /// files, or a directory of them, are georeferenced tiles of one terrain (a mosaic): each is
+    /// placed by its georeferencing, all in one CRS and posting; posts no tile covers become
+    /// nodata; where tiles overlap the first given wins.
+    #[arg(required = true, num_args = 1.., value_name = "INPUT")]
+    pub inputs: Vec<PathBuf>,
     /// Terrain file to write (replaced atomically if it exists).
     pub output: PathBuf,
     /// Record order in the file.
@@ -80,7 +84,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     opts.format = a.format;
     opts.scratch_dir = a.scratch_dir;
     opts.progress = progress(a.quiet);
-    let r = convert(&a.input, &a.output, &opts).map_err(|e| match e {
+    let input = &a.inputs[0];
+    let r = convert_many(&a.inputs, &a.output, &opts).map_err(|e| match e {
         relief::Error::UnknownFormat { .. } => anyhow::anyhow!("{e} (--format)"),
         e => e.into(),
     })?;
@@ -89,11 +94,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     if r.spacing_source.starts_with("assumed") {
-        eprintln!("relief: warning: {}: post spacing {} (--spacing)", a.input.display(), r.spacing_source);
+        eprintln!("relief: warning: {}: post spacing {} (--spacing)", input.display(), r.spacing_source);
     }
     println!(
-        "{} -> {}: {}x{} {} padded to {}², layout {}, {} records, {:.2} s ({:.1} M vertices/s){}",
-        a.input.display(),
+        "{}{} -> {}: {}x{} {} padded to {}², layout {}, {} records, {:.2} s ({:.1} M vertices/s){}",
+        input.display(),
+        if a.inputs.len() > 1 { format!(" (and {} more)", a.inputs.len() - 1) } else { String::new() },
         a.output.display(),
         r.source_width,
         r.source_height,

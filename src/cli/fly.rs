@@ -35,6 +35,11 @@ pub struct Args {
     /// Where refinement runs [default: thread in a window, sync headless].
     #[arg(long, value_enum)]
     pub refinement: Option<Refinement>,
+    /// --path's frames and --eye/--look give X, Y in the terrain's coordinate system (easting and
+    /// northing, or longitude and latitude, as `relief info` shows it) and Z in metres, instead of
+    /// local metres from the grid's south-west post.
+    #[arg(long)]
+    pub crs_coords: bool,
     #[command(flatten)]
     pub access: AccessArgs,
     #[command(flatten)]
@@ -52,9 +57,21 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let access =
         a.access.access(Access::Map, || Ok(TerrainFile::open(&file)?.grid().vertices() * RECORD_BYTES as u64))?;
     let terrain = Arc::new(TerrainFile::open_with(&file, access)?);
+    let mut window = a.fly.window()?;
+    let mut flight = flight;
+    if a.crs_coords {
+        let local = super::crs_to_local(&terrain)?;
+        if let Some(f) = flight.as_mut() {
+            for frame in &mut f.frames {
+                frame.eye = local(frame.eye.into()).into();
+                frame.look = local(frame.look.into()).into();
+            }
+        }
+        window.start = window.start.map(|(eye, look)| (local(eye), local(look)));
+    }
     let Some(flight) = flight else {
         let options = WindowOptions {
-            window: a.fly.window()?,
+            window,
             refine,
             wireframe: a.fly.wireframe,
             threads: a.refine.threads,

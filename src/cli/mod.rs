@@ -13,6 +13,7 @@ use glam::DVec3;
 use relief::camera::{Camera, UpAxis};
 use relief::dem::DemFormat;
 use relief::flight::FlightPath;
+use relief::format::terrain::TerrainFile;
 use relief::layout::LayoutKind;
 use relief::pager::Access;
 use relief::refine::metric::MetricKind;
@@ -151,6 +152,11 @@ pub struct ViewArgs {
     /// Up direction "X,Y,Z".
     #[arg(long, value_name = "X,Y,Z", default_value = "0,0,1", allow_hyphen_values = true)]
     pub up: String,
+    /// --eye and --look give X, Y in the terrain's coordinate system (easting and northing, or
+    /// longitude and latitude, as `relief info` shows it) and Z in metres, instead of local
+    /// metres from the grid's south-west post.
+    #[arg(long)]
+    pub crs_coords: bool,
     #[command(flatten)]
     pub image: ImageArgs,
     #[command(flatten)]
@@ -158,19 +164,37 @@ pub struct ViewArgs {
 }
 
 impl ViewArgs {
-    /// The validated camera and refinement options.
-    pub fn resolve(&self) -> anyhow::Result<(Camera, RefineOptions)> {
+    /// The validated camera (in `terrain`'s local metres) and refinement options.
+    pub fn resolve(&self, terrain: &TerrainFile) -> anyhow::Result<(Camera, RefineOptions)> {
         let options = self.refine.options()?;
-        let camera = Camera::new(
-            parse_vec3("--eye", &self.eye)?,
-            parse_vec3("--look", &self.look)?,
-            parse_vec3("--up", &self.up)?,
-            self.image.fov,
-            self.image.width,
-            self.image.height,
-        )?;
+        let (eye, look) = (parse_vec3("--eye", &self.eye)?, parse_vec3("--look", &self.look)?);
+        let (eye, look) = if self.crs_coords {
+            let local = crs_to_local(terrain)?;
+            (local(eye), local(look))
+        } else {
+            (eye, look)
+        };
+        let camera =
+            Camera::new(eye, look, parse_vec3("--up", &self.up)?, self.image.fov, self.image.width, self.image.height)?;
         Ok((camera, options))
     }
+}
+
+/// What `--crs-coords` does: X, Y in `terrain`'s CRS to local metres (Z unchanged); an error
+/// naming the file when it has no CRS placement.
+pub fn crs_to_local(terrain: &TerrainFile) -> anyhow::Result<impl Fn(DVec3) -> DVec3> {
+    let h = terrain.header();
+    let Some(g) = h.georef else {
+        bail!(
+            "--crs-coords: {} has no coordinate system (its source was not georeferenced); give local metres",
+            terrain.path().display()
+        );
+    };
+    let spacing_m = h.spacing_m;
+    Ok(move |p: DVec3| {
+        let [x, y] = g.local_of_crs([p.x, p.y], spacing_m);
+        DVec3::new(x, y, p.z)
+    })
 }
 
 /// GPU memory for a terrain's heights (`fly`, `render`).
@@ -185,6 +209,11 @@ pub struct GpuArgs {
     /// Height cache: tile bytes sent to the GPU per frame at most (K/M/G suffix) [default: 16M]
     #[arg(long, value_name = "BYTES")]
     pub gpu_upload: Option<String>,
+    /// How to draw the DEM's nodata posts (kept by `convert` as a void mask; `info` counts them):
+    /// not at all, like the padding around the DEM (void); as water at 0 m (sea-level); or as the
+    /// heights filled in for the level-of-detail hierarchy (filled)
+    #[arg(long, value_name = "STYLE", value_enum, default_value_t = relief::render::NodataStyle::Void)]
+    pub nodata_as: relief::render::NodataStyle,
 }
 
 impl GpuArgs {
@@ -193,6 +222,7 @@ impl GpuArgs {
         Ok(relief::render::RendererOptions {
             gpu_memory: bytes("--gpu-memory", &self.gpu_memory)?,
             upload_per_frame: bytes("--gpu-upload", &self.gpu_upload)?,
+            nodata: self.nodata_as,
             ..Default::default()
         })
     }

@@ -29,11 +29,11 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let (camera, options) = a.view.resolve()?;
     if a.repeat == 0 {
         bail!("--repeat must be at least 1");
     }
     let f = TerrainFile::open(&a.file)?;
+    let (camera, options) = a.view.resolve(&f)?;
     let report = ReportOptions {
         threads: a.view.refine.threads,
         repeat: a.repeat,

@@ -31,10 +31,10 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let (camera, options) = a.view.resolve()?;
     let renderer = a.gpu.options()?;
     check_output_file("--out", &a.out)?;
     let f = Arc::new(TerrainFile::open(&a.file)?);
+    let (camera, options) = a.view.resolve(&f)?;
     let gpu = Gpu::headless()?;
     let style = DrawStyle { wireframe: a.wireframe };
     let (image, r) = render_still(

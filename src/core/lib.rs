@@ -17,6 +17,7 @@ pub mod error;
 pub mod faults;
 pub mod flight;
 pub mod format;
+pub mod georef;
 pub mod heightcache;
 pub mod layout;
 pub mod lod;

@@ -18,4 +18,4 @@ pub use gpu::Gpu;
 pub use mesh::{MeshRenderer, MeshStyle, MeshView};
 pub use offscreen::Offscreen;
 pub use present::{render_still, save_png, MeshPresenter, MeshStage, StillOptions, StillReport, TerrainPresenter};
-pub use terrain::{DrawStyle, FrameView, RendererOptions, TerrainRenderer};
+pub use terrain::{DrawStyle, FrameView, NodataStyle, RendererOptions, TerrainRenderer};

@@ -58,6 +58,7 @@ pub struct FrameUniform {
     wire_colour: [f32; 4],
     valid_window: [f32; 4],
     cache: [u32; 4],
+    nodata: [u32; 4],
 }
 
 /// What the probe pass writes to its second target (the first always holds grid x, grid y,
@@ -94,9 +95,33 @@ impl FrameView {
     }
 }
 
+/// How posts that were nodata in the DEM (the terrain file's void mask) are drawn.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum NodataStyle {
+    /// Not drawn: discarded like the padding around the DEM.
+    #[default]
+    Void,
+    /// A water surface at 0 m (voids that are sea, as in many coastal DEMs).
+    SeaLevel,
+    /// The heights filled in for the hierarchy, drawn as terrain.
+    Filled,
+}
+
+impl NodataStyle {
+    fn code(self) -> u32 {
+        match self {
+            NodataStyle::Filled => 0,
+            NodataStyle::Void => 1,
+            NodataStyle::SeaLevel => 2,
+        }
+    }
+}
+
 /// Options for building a renderer.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct RendererOptions {
+    /// How the DEM's nodata posts are drawn.
+    pub nodata: NodataStyle,
     /// Force a heights tile size (posts per side); default: the least memory within the limits.
     pub tile_posts: Option<u32>,
     /// GPU memory for heights, bytes: the whole grid stays resident when it fits, else the height
@@ -125,6 +150,10 @@ pub struct TerrainRenderer {
     shade: ShadeParams,
     /// The DEM's posts in the grid, inclusive `[x0, y0, x1, y1]`.
     valid_window: [u32; 4],
+    /// (style code, 1 when the file has a void mask, 0, 0); see `Frame.nodata` in the shader.
+    nodata: [u32; 4],
+    /// The void mask's bits (one word when the file has none), kept for the bind group.
+    _void_mask: wgpu::Buffer,
     uniform: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
     terrain_pipeline: wgpu::RenderPipeline,
@@ -257,8 +286,43 @@ impl TerrainRenderer {
                     },
                     count: None,
                 },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
             ],
         });
+        // The void mask as 32-bit words (its bytes are little-endian bit order already).
+        let mask = if options.nodata == NodataStyle::Filled { None } else { terrain.void_mask()? };
+        let mut words = vec![0u32; 1];
+        if let Some(m) = &mask {
+            words = vec![0u32; m.bits.len().div_ceil(4).max(1)];
+            bytemuck::cast_slice_mut::<u32, u8>(&mut words)[..m.bits.len()].copy_from_slice(&m.bits);
+            let bytes = 4 * words.len() as u64;
+            if bytes > limits.max_storage_buffer_binding_size {
+                return Err(crate::Error::InvalidArgument(format!(
+                    "{}: the void mask ({bytes} bytes) is over the GPU's storage buffer limit ({} bytes); \
+                     draw nodata as filled terrain",
+                    terrain.path().display(),
+                    limits.max_storage_buffer_binding_size
+                )));
+            }
+        }
+        let void_mask = {
+            use wgpu::util::DeviceExt;
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("relief void mask"),
+                contents: bytemuck::cast_slice(&words),
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        let nodata = [options.nodata.code(), u32::from(mask.is_some()), 0, 0];
         // Without the cache the table is never read; a small buffer fills the binding.
         let no_table = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("relief height table (unused)"),
@@ -277,6 +341,7 @@ impl TerrainRenderer {
                 wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(heights_view) },
                 wgpu::BindGroupEntry { binding: 2, resource: table.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: void_mask.as_entire_binding() },
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -378,6 +443,8 @@ impl TerrainRenderer {
                 let [x0, y0, x1, y1] = h.valid_window;
                 [x0, y0, x1 - 1, y1 - 1]
             },
+            nodata,
+            _void_mask: void_mask,
             uniform,
             bind_group,
             terrain_pipeline,
@@ -532,6 +599,7 @@ impl TerrainRenderer {
             wire_colour: [0.02, 0.02, 0.03, 1.0],
             valid_window: self.valid_window.map(|v| v as f32),
             cache,
+            nodata: self.nodata,
         }
     }
 

@@ -39,6 +39,7 @@ const PAGED: RendererOptions = RendererOptions {
     gpu_memory: Some(BUDGET),
     upload_per_frame: Some(64_000),
     cache_tile_cells: Some(32),
+    nodata: relief::render::NodataStyle::Void,
 };
 
 #[test]

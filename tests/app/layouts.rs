@@ -94,6 +94,11 @@ fn relayout_of_a_terrain_file_equals_converting_its_dem() {
     assert_eq!(relaid.mapped_payload(), from_dem.mapped_payload(), "records differ");
     let (a, b) = (relaid.header(), from_dem.header());
     assert_eq!((a.valid_window, a.spacing_m, a.z_min, a.z_max), (b.valid_window, b.spacing_m, b.z_min, b.z_max));
+    // The void mask goes along: the same posts, the same count.
+    let mask = relaid.void_mask().unwrap().expect("hugo's voids are kept");
+    assert_eq!(Some(&mask), from_dem.void_mask().unwrap().as_ref());
+    assert_eq!((mask.count(), a.nodata_filled), (b.nodata_filled, b.nodata_filled));
+    relaid.verify_payload().unwrap();
     assert!(relayout(&source, source.path(), &ConvertOptions::new(LayoutKind::Hz)).is_err());
 }
 

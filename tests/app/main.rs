@@ -17,6 +17,7 @@ mod edge_cases;
 mod flight;
 mod fly;
 mod fuzz_regressions;
+mod georef;
 mod height_cache;
 mod layouts;
 mod mesh_io;

@@ -154,6 +154,66 @@ fn gpu_shading_matches_the_cpu_reference_across_tiles() {
     assert!(worst_c < 2e-3, "colour differs by {worst_c}");
 }
 
+/// The real nodata DEM (hugo, 27% void): its void posts are not drawn by default, drawn as water
+/// at 0 m with `sea-level`, and drawn as their filled heights with `filled`. Which post owns a
+/// fragment is the nearest one, as in the shader.
+#[test]
+fn nodata_posts_are_drawn_as_asked() {
+    use relief::render::NodataStyle;
+    let gpu = gpu();
+    let t = terrain("hugo_site_nodata.asc");
+    let mask = t.void_mask().unwrap().expect("hugo has nodata, so a void mask");
+    assert_eq!(mask.count(), t.header().nodata_filled);
+    let cam = camera([-60.0, -160.0, 1860.0], [380.0, 300.0, 1660.0], 256, 160);
+    let mut strip = Strip::new();
+    Refiner::new(1)
+        .unwrap()
+        .refine_file(&t, &cam, &RefineOptions { tolerance_px: 1.0, ..Default::default() }, &mut strip)
+        .unwrap();
+    let probe = |nodata: NodataStyle| {
+        let opts = RendererOptions { nodata, ..Default::default() };
+        let mut r =
+            TerrainRenderer::new(&gpu, &t, relief::render::offscreen::OFFSCREEN_FORMAT, opts, Progress::hidden())
+                .unwrap();
+        r.upload_strip(&gpu, &strip).unwrap();
+        let targets = ProbeTargets::new(&gpu, cam.width_px, cam.height_px);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        let views = [&targets.views[0], &targets.views[1]];
+        r.encode_probe(&gpu, &mut enc, views, &targets.depth_view, &FrameView::new(&t, cam), Probe::Normal);
+        gpu.queue.submit([enc.finish()]);
+        (targets.read(&gpu, 0).unwrap(), targets.read(&gpu, 1).unwrap())
+    };
+    // (covered pixels, of which on void posts), and the void pixels' surface heights.
+    let census = |(pos, normal): &(Vec<[f32; 4]>, Vec<[f32; 4]>)| {
+        let (mut covered, mut void, mut void_heights) = (0usize, 0usize, Vec::new());
+        for (p, n) in pos.iter().zip(normal) {
+            if n[3] != 1.0 {
+                continue;
+            }
+            covered += 1;
+            let post = [(p[0] + 0.5).floor() as u32, (p[1] + 0.5).floor() as u32];
+            if mask.is_void(post[0], post[1]) {
+                void += 1;
+                void_heights.push(p[2]);
+            }
+        }
+        (covered, void, void_heights)
+    };
+    let (filled_covered, filled_void, _) = census(&probe(NodataStyle::Filled));
+    let (void_covered, void_void, _) = census(&probe(NodataStyle::Void));
+    let (sea_covered, sea_void, sea_heights) = census(&probe(NodataStyle::SeaLevel));
+    assert!(filled_void > filled_covered / 10, "the view shows the void: {filled_void} of {filled_covered} pixels");
+    assert_eq!(void_void, 0, "a void post was drawn");
+    assert!(void_covered > 2_000 && void_covered < filled_covered - filled_void / 2, "{void_covered}");
+    // The water lies 1,660 m below the data: a band of it shows beneath the cliffs.
+    assert!(sea_void > 100, "{sea_void} water pixels");
+    eprintln!(
+        "filled {filled_covered} ({filled_void} void), void {void_covered}, sea {sea_covered} ({sea_void} water)"
+    );
+    assert!(sea_covered >= void_covered, "{sea_covered} < {void_covered}");
+    assert!(sea_heights.iter().all(|&z| z == -0.5), "water is drawn as water");
+}
+
 /// A golden view: DEM, camera, tolerance, style.
 struct Golden {
     name: &'static str,

@@ -10,6 +10,7 @@ use relief_core::format::pagefile::{PageHeader, PageLayout};
 use relief_core::format::terrain::{Header, PAYLOAD_OFFSET, RECORD_BYTES, RECORD_FORMAT_F32};
 use relief_core::format::vdt::{VdtHeader, VdtMetric};
 use relief_core::format::{decode_header, FileKind, Format, HeaderBytes, Problem};
+use relief_core::georef::{unit, CrsKind, Georef};
 use relief_core::layout::LayoutKind;
 use relief_core::mesh::Bounds;
 
@@ -40,11 +41,23 @@ fn terrain_header() -> Header {
         nodata_filled: 3,
         source_centre_lat_deg: 47.5,
         source_spacing_deg: [1.0 / 3600.0, 1.0 / 3600.0],
+        georef: Some(Georef {
+            kind: CrsKind::Projected,
+            epsg: 2056,
+            unit: unit::METRE,
+            vertical_epsg: 5728,
+            vertical_unit: unit::FOOT,
+            origin: [2_600_000.0, 1_200_000.5],
+            step: [25.0, 30.5],
+        }),
+        // The page after the payload (4096 + 109 × 12 bytes).
+        void_mask_offset: 8192,
         payload_checksum: 0x0123_4567_89ab_cdef,
     }
 }
 
-const TERRAIN_GOLDEN: &str = concat!(
+/// The same header as version 1 wrote it (no CRS): still read, as version 1 without a CRS.
+const TERRAIN_GOLDEN_V1: &str = concat!(
     "8952454c4945460a01000000000100000200000000000000010000000c000000",
     "0300000006000000090000000200000000000000000000000700000009000000",
     "00000000000000006d0000000000000051000000000000000010000000000000",
@@ -53,6 +66,17 @@ const TERRAIN_GOLDEN: &str = concat!(
     "0000000000c04740dfbc9a785634323fdfbc9a785634323f0000000000000000",
     "0000000000000000000000000000000000000000000000000000000000000000",
     "00000000000000000000000000000000efcdab8967452301d34f9e2cc2e27cb5",
+);
+
+const TERRAIN_GOLDEN: &str = concat!(
+    "8952454c4945460a02000000000100000200000000000000010000000c000000",
+    "0300000006000000090000000200000000000000000000000700000009000000",
+    "00000000000000006d0000000000000051000000000000000010000000000000",
+    "1c0500000000000000000000000039400000000000803e40000000000000f03f",
+    "000000000000000000000000000029c00000000000308b400300000000000000",
+    "0000000000c04740dfbc9a785634323fdfbc9a785634323f0808000001002923",
+    "601600002a2301000000000020d6434100000080804f32410000000000003940",
+    "0000000000803e400020000000000000efcdab896745230183e5e0cdf537e87b",
 );
 
 fn vdt_header() -> VdtHeader {
@@ -107,7 +131,8 @@ fn pages_header() -> PageHeader {
 /// The file length each sample header describes.
 fn file_len(kind: FileKind) -> u64 {
     match kind {
-        FileKind::Terrain => PAYLOAD_OFFSET + 109 * 12,
+        // The void mask's checksum and 7 × 9 bits after the payload's page.
+        FileKind::Terrain => 8192 + 8 + 8,
         FileKind::Vdt => vdt_header().file_bytes(),
         FileKind::MetaNode => 8192 + 3 * 4096,
         FileKind::Pages => 1024 + 2 * 1024,
@@ -174,6 +199,35 @@ fn terrain_header_bytes_are_frozen_and_checked() {
     container_checks(&terrain_header(), "golden.relief");
     corrupt_field::<Header>("golden.relief", |h| h.put_u32(16, 99), "unknown layout code 99");
     corrupt_field::<Header>("golden.relief", |h| h.put_u64(72, 110), "110 records");
+    corrupt_field::<Header>("golden.relief", |h| h.put_u32(188, 7 | 9001 << 16), "unknown CRS kind 7");
+    corrupt_field::<Header>("golden.relief", |h| h.put_f64(216, 0.0), "CRS placement");
+    corrupt_field::<Header>("golden.relief", |h| h.put_f64(200, f64::NAN), "CRS placement");
+    corrupt_field::<Header>("golden.relief", |h| h.put_u64(232, 4096), "void mask offset 4096");
+}
+
+#[test]
+fn version_1_terrain_headers_still_open_without_a_crs() {
+    let bytes: Vec<u8> = (0..TERRAIN_GOLDEN_V1.len() / 2)
+        .map(|k| u8::from_str_radix(&TERRAIN_GOLDEN_V1[2 * k..2 * k + 2], 16).unwrap())
+        .collect();
+    let h: Header = decode_header(Path::new("v1.relief"), &bytes, PAYLOAD_OFFSET + 109 * 12).unwrap();
+    assert_eq!(h, Header { version: 1, georef: None, void_mask_offset: 0, ..terrain_header() });
+    // Version 1 re-encoded is byte for byte what version 1 wrote.
+    assert_eq!(hex(&h.encode().0), TERRAIN_GOLDEN_V1);
+    // Versions before 1 and after this build's are refused, naming both ends.
+    for v in [0u32, relief_core::format::terrain::VERSION + 1] {
+        let mut b = HeaderBytes(bytes.clone().try_into().unwrap());
+        b.put_u32(8, v);
+        b.seal();
+        let e = decode_header::<Header>(Path::new("v.relief"), &b.0, file_len(FileKind::Terrain)).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "v.relief: terrain file version {v} is not supported (this build reads versions 1 to {})",
+                relief_core::format::terrain::VERSION
+            )
+        );
+    }
 }
 
 #[test]

@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 
 use super::{check_dimensions, DemFormat, DemInfo, DemSource, Run, SourceSpacing, MAX_RUN};
 use crate::error::{Error, IoContext, Result};
+use crate::georef::{unit, CrsKind, Georef};
 
 /// Whether `head` (the first bytes of a file) starts like an ASCII grid: its first token is
 /// `ncols` or `nrows`, in any case.
@@ -74,6 +75,7 @@ struct Header {
     ncols: u64,
     nrows: u64,
     /// Lower-left corner (not centre) of the grid.
+    xll_corner: f64,
     yll_corner: f64,
     dx: f64,
     dy: f64,
@@ -84,7 +86,8 @@ struct Header {
 fn read_header(lines: &mut Lines) -> Result<Header> {
     let mut ncols = None;
     let mut nrows = None;
-    let mut xll = false;
+    let mut xll_corner = None;
+    let mut xll_centre = None;
     let mut yll_corner = None;
     let mut yll_centre = None;
     let mut cellsize = None;
@@ -120,10 +123,8 @@ fn read_header(lines: &mut Lines) -> Result<Header> {
         match key.as_str() {
             "ncols" => ncols = Some(count(value)?),
             "nrows" => nrows = Some(count(value)?),
-            "xllcorner" | "xllcenter" => {
-                number(value)?;
-                xll = true;
-            }
+            "xllcorner" => xll_corner = Some(number(value)?),
+            "xllcenter" => xll_centre = Some(number(value)?),
             "yllcorner" => yll_corner = Some(number(value)?),
             "yllcenter" => yll_centre = Some(number(value)?),
             "cellsize" => cellsize = Some(number(value)?),
@@ -138,9 +139,6 @@ fn read_header(lines: &mut Lines) -> Result<Header> {
         |key: &str| Error::bad_dem(&lines.path, format!("header key '{key}' missing before line {}", lines.number));
     let ncols = ncols.ok_or_else(|| missing("ncols"))?;
     let nrows = nrows.ok_or_else(|| missing("nrows"))?;
-    if !xll {
-        return Err(missing("xllcorner"));
-    }
     let (dx, dy) = match (cellsize, dx, dy) {
         (_, Some(dx), Some(dy)) => (dx, dy),
         (Some(c), _, _) => (c, c),
@@ -149,12 +147,17 @@ fn read_header(lines: &mut Lines) -> Result<Header> {
     if !(dx > 0.0 && dy > 0.0) {
         return Err(Error::bad_dem(&lines.path, format!("cell size {dx} x {dy} is not positive")));
     }
+    let xll_corner = match (xll_corner, xll_centre) {
+        (Some(x), _) => x,
+        (None, Some(x)) => x - dx / 2.0,
+        (None, None) => return Err(missing("xllcorner")),
+    };
     let yll_corner = match (yll_corner, yll_centre) {
         (Some(y), _) => y,
         (None, Some(y)) => y - dy / 2.0,
         (None, None) => return Err(missing("yllcorner")),
     };
-    Ok(Header { ncols, nrows, yll_corner, dx, dy, nodata })
+    Ok(Header { ncols, nrows, xll_corner, yll_corner, dx, dy, nodata })
 }
 
 /// Whether a `.prj` next to `path` describes geographic (unprojected) coordinates.
@@ -177,7 +180,19 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
     let mut lines = Lines::open(path)?;
     let header = read_header(&mut lines)?;
     let (width, height) = check_dimensions(path, header.ncols, header.nrows)?;
-    let spacing = if prj_is_geographic(path) {
+    let geographic = prj_is_geographic(path);
+    // The grid is cell-registered from its lower-left corner: the south-west post is the centre
+    // of the lower-left cell. Which CRS it is in, a `.prj` would say in WKT (not parsed here).
+    let georef = Georef {
+        kind: if geographic { CrsKind::Geographic } else { CrsKind::Unknown },
+        epsg: 0,
+        unit: if geographic { unit::DEGREE } else { 0 },
+        vertical_epsg: 0,
+        vertical_unit: 0,
+        origin: [header.xll_corner + header.dx / 2.0, header.yll_corner + header.dy / 2.0],
+        step: [header.dx, header.dy],
+    };
+    let spacing = if geographic {
         let centre_lat_deg = header.yll_corner + header.nrows as f64 * header.dy / 2.0;
         SourceSpacing::Degrees { x: header.dx, y: header.dy, centre_lat_deg }
     } else {
@@ -190,6 +205,7 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         spacing: Some(spacing),
         nodata: header.nodata,
         sample_type: "ascii decimal".into(),
+        georef: georef.is_valid().then_some(georef),
     };
     Ok(Box::new(Asc { path: path.to_path_buf(), info }))
 }

@@ -111,7 +111,8 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         SampleType::U32 => "uint32",
     };
     let sample_type = format!("{kind} channel {}", description.name);
-    let info = DemInfo { format: DemFormat::Exr, width, height, spacing: None, nodata: None, sample_type };
+    let info =
+        DemInfo { format: DemFormat::Exr, width, height, spacing: None, nodata: None, sample_type, georef: None };
     Ok(Box::new(Exr { path: path.to_path_buf(), info }))
 }
 

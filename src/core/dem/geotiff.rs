@@ -1,8 +1,9 @@
 //! GeoTIFF / TIFF reader: 8/16/32/64-bit signed and unsigned integers, 16/32/64-bit floats, in
 //! strips or tiles, with any compression the `tiff` crate decodes (none, deflate, LZW, PackBits,
 //! …). Multi-sample pixels contribute their first sample. Georeferencing comes from the
-//! ModelPixelScale / ModelTiepoint / GeoKeyDirectory tags (or ModelTransformation), nodata from
-//! GDAL's `GDAL_NODATA` tag.
+//! ModelPixelScale / ModelTiepoint / GeoKeyDirectory tags (or ModelTransformation): the post
+//! spacing, the CRS's EPSG codes and units, and where the posts lie in it ([`Georef`]); nodata
+//! from GDAL's `GDAL_NODATA` tag.
 //!
 //! The image is streamed one chunk (strip or tile) at a time.
 
@@ -16,15 +17,24 @@ use tiff::{ColorType, TiffError};
 
 use super::{check_dimensions, DemFormat, DemInfo, DemSource, Run, RunBuffer, SourceSpacing};
 use crate::error::{Error, IoContext, Result};
+use crate::georef::{unit, CrsKind, Georef};
 
 /// The largest strip or tile read, in bytes: `tiff`'s own limit for a decoded chunk.
 const MAX_CHUNK_BYTES: u128 = 256 << 20;
 
+// GeoKey IDs and values (OGC GeoTIFF 1.1, §7.5 and Annex D).
 const GT_MODEL_TYPE: u16 = 1024;
+const GT_RASTER_TYPE: u16 = 1025;
+const GEOGRAPHIC_TYPE: u16 = 2048;
+const GEOG_ANGULAR_UNITS: u16 = 2054;
+const PROJECTED_CS_TYPE: u16 = 3072;
 const PROJ_LINEAR_UNITS: u16 = 3076;
+const VERTICAL_CS_TYPE: u16 = 4096;
+const VERTICAL_UNITS: u16 = 4099;
+const MODEL_TYPE_PROJECTED: u16 = 1;
 const MODEL_TYPE_GEOGRAPHIC: u16 = 2;
-const UNIT_FOOT: u16 = 9002;
-const UNIT_US_SURVEY_FOOT: u16 = 9003;
+const RASTER_PIXEL_IS_POINT: u16 = 2;
+const USER_DEFINED: u16 = 32767;
 
 /// An open GeoTIFF.
 struct GeoTiff {
@@ -118,9 +128,9 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
     }
 
     let nodata = read_nodata(path, &mut decoder)?;
-    let spacing = read_spacing(path, &mut decoder, height)?;
+    let (spacing, georef) = read_georef(path, &mut decoder, height)?;
 
-    let info = DemInfo { format: DemFormat::GeoTiff, width, height, spacing, nodata, sample_type };
+    let info = DemInfo { format: DemFormat::GeoTiff, width, height, spacing, nodata, sample_type, georef };
     Ok(Box::new(GeoTiff { path: path.to_path_buf(), decoder, info }))
 }
 
@@ -136,8 +146,13 @@ fn read_nodata(path: &Path, decoder: &mut Decoder<BufReader<File>>) -> Result<Op
     Ok(text.trim_matches(|c: char| c == '\0' || c.is_whitespace()).parse::<f64>().ok())
 }
 
-/// Reads the post spacing from the GeoTIFF tags (see the module doc).
-fn read_spacing(path: &Path, decoder: &mut Decoder<BufReader<File>>, height: u32) -> Result<Option<SourceSpacing>> {
+/// Reads the post spacing, the CRS and the posts' placement from the GeoTIFF tags (see the
+/// module doc).
+fn read_georef(
+    path: &Path,
+    decoder: &mut Decoder<BufReader<File>>,
+    height: u32,
+) -> Result<(Option<SourceSpacing>, Option<Georef>)> {
     let find_f64s = |decoder: &mut Decoder<BufReader<File>>, tag: Tag| -> Result<Option<Vec<f64>>> {
         match decoder.find_tag(tag).map_err(|e| tiff_error(path, e))? {
             Some(v) => Ok(v.into_f64_vec().ok()),
@@ -147,45 +162,75 @@ fn read_spacing(path: &Path, decoder: &mut Decoder<BufReader<File>>, height: u32
     let scale = find_f64s(decoder, Tag::ModelPixelScaleTag)?;
     let tie = find_f64s(decoder, Tag::ModelTiepointTag)?;
     let transform = find_f64s(decoder, Tag::ModelTransformationTag)?;
-
-    // (sx, sy, j, Y): scale, and the tie point's row and northing/latitude.
-    let (sx, sy, tie_row, tie_y) = match (scale.as_deref(), transform.as_deref()) {
-        (Some([sx, sy, ..]), _) => {
-            let (j, y) = match tie.as_deref() {
-                Some([_, j, _, _, y, ..]) => (*j, Some(*y)),
-                _ => (0.0, None),
-            };
-            (sx.abs(), sy.abs(), j, y)
-        }
-        // A transformation without rotation or shear: X = m0·i + m3, Y = m5·j + m7.
-        (_, Some(m)) if m.len() >= 8 && m[1] == 0.0 && m[4] == 0.0 => (m[0].abs(), m[5].abs(), 0.0, Some(m[7])),
-        _ => return Ok(None),
-    };
-    if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0) {
-        return Ok(None);
-    }
-
     let keys = match decoder.find_tag(Tag::GeoKeyDirectoryTag).map_err(|e| tiff_error(path, e))? {
         Some(v) => v.into_u16_vec().unwrap_or_default(),
         None => Vec::new(),
     };
-    let model_type = geo_key(&keys, GT_MODEL_TYPE);
-    if model_type == Some(MODEL_TYPE_GEOGRAPHIC) {
-        let centre_lat_deg = match tie_y {
-            Some(y) => y - sy * (f64::from(height) / 2.0 - tie_row),
-            None => 0.0,
-        };
-        if !centre_lat_deg.is_finite() {
-            return Ok(None);
-        }
-        return Ok(Some(SourceSpacing::Degrees { x: sx, y: sy, centre_lat_deg }));
-    }
-    let unit = match geo_key(&keys, PROJ_LINEAR_UNITS) {
-        Some(UNIT_FOOT) => 0.3048,
-        Some(UNIT_US_SURVEY_FOOT) => 1200.0 / 3937.0,
-        _ => 1.0,
+
+    // The raster → model map as X = x0 + i·sx, Y = y0 − j·sy for raster coordinates (i, j),
+    // whose pixel (c, r) spans [c, c + 1) × [r, r + 1) (PixelIsArea) or sits at (c, r)
+    // (PixelIsPoint).
+    let (sx, sy, x0, y0) = match (scale.as_deref(), transform.as_deref()) {
+        (Some([sx, sy, ..]), _) => match tie.as_deref() {
+            Some([i, j, _, x, y, ..]) => (*sx, *sy, x - i * sx, y + j * sy),
+            _ => (*sx, *sy, f64::NAN, f64::NAN),
+        },
+        // A transformation without rotation or shear: X = m0·i + m3, Y = m5·j + m7.
+        (_, Some(m)) if m.len() >= 8 && m[1] == 0.0 && m[4] == 0.0 => (m[0], -m[5], m[3], m[7]),
+        _ => return Ok((None, None)),
     };
-    Ok(Some(SourceSpacing::Metres { x: sx * unit, y: sy * unit }))
+    if !(sx.is_finite() && sy.is_finite() && sx != 0.0 && sy != 0.0) {
+        return Ok((None, None));
+    }
+    let (sx_abs, sy_abs) = (sx.abs(), sy.abs());
+    // Posts are pixel centres for PixelIsArea.
+    let centre = if geo_key(&keys, GT_RASTER_TYPE) == Some(RASTER_PIXEL_IS_POINT) { 0.0 } else { 0.5 };
+    let code = |key: u16| geo_key(&keys, key).filter(|&c| c != 0 && c != USER_DEFINED).map(u32::from);
+    let model_type = geo_key(&keys, GT_MODEL_TYPE);
+    let (projected_cs, geographic_cs) = (code(PROJECTED_CS_TYPE), code(GEOGRAPHIC_TYPE));
+    let kind = match model_type {
+        Some(MODEL_TYPE_GEOGRAPHIC) => CrsKind::Geographic,
+        Some(MODEL_TYPE_PROJECTED) => CrsKind::Projected,
+        None if projected_cs.is_some() => CrsKind::Projected,
+        None if geographic_cs.is_some() => CrsKind::Geographic,
+        _ => CrsKind::Unknown,
+    };
+    let (epsg, unit) = match kind {
+        CrsKind::Geographic => (geographic_cs.unwrap_or(0), geo_key(&keys, GEOG_ANGULAR_UNITS).unwrap_or(unit::DEGREE)),
+        // Files that name the CRS by code often leave the unit out (GDAL writes them so): the
+        // code implies it.
+        CrsKind::Projected => {
+            let implied = projected_cs.map_or(0, unit::of_projected);
+            (projected_cs.unwrap_or(0), geo_key(&keys, PROJ_LINEAR_UNITS).unwrap_or(implied))
+        }
+        CrsKind::Unknown => (0, geo_key(&keys, PROJ_LINEAR_UNITS).unwrap_or(0)),
+    };
+    let last_row = f64::from(height) - 1.0;
+    let georef = Georef {
+        kind,
+        epsg,
+        unit,
+        vertical_epsg: code(VERTICAL_CS_TYPE).unwrap_or(0),
+        vertical_unit: geo_key(&keys, VERTICAL_UNITS)
+            .or_else(|| code(VERTICAL_CS_TYPE).map(unit::of_vertical))
+            .unwrap_or(0),
+        // Grid post (0, 0) is the pixel of column 0 in the last (southernmost) row.
+        origin: [x0 + centre * sx, y0 - (last_row + centre) * sy],
+        step: [sx, sy],
+    };
+    // Only a north-up, east-right grid is placed (as relief reads it, row 0 north).
+    let georef = georef.is_valid().then_some(georef);
+
+    let spacing = if kind == CrsKind::Geographic {
+        // The centre row's latitude (the tie point's row, if any, as the file gives it).
+        let centre_lat_deg = y0 - sy * f64::from(height) / 2.0;
+        let centre_lat_deg = if centre_lat_deg.is_finite() { centre_lat_deg } else { 0.0 };
+        Some(SourceSpacing::Degrees { x: sx_abs, y: sy_abs, centre_lat_deg })
+    } else {
+        let metres = unit::metres(unit).unwrap_or(1.0);
+        Some(SourceSpacing::Metres { x: sx_abs * metres, y: sy_abs * metres })
+    };
+    Ok((spacing, georef))
 }
 
 /// Looks up a SHORT-valued key stored inline in a GeoKeyDirectory (header of 4 shorts, then

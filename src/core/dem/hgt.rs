@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 
 use super::{check_dimensions, DemFormat, DemInfo, DemSource, Run, RunBuffer, SourceSpacing};
 use crate::error::{Error, IoContext, Result};
+use crate::georef::{unit, CrsKind, Georef};
 
 /// Value of a void (missing) post.
 const VOID: i16 = -32768;
@@ -72,9 +73,19 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         Error::bad_dem(path, format!("size {size} bytes is not that of a square .hgt tile (2·1201² or 2·3601²)"))
     })?;
     let (width, height) = check_dimensions(path, side, side)?;
-    let spacing = parse_tile_name(path).map(|(lat, _lon)| {
-        let step = 1.0 / (side - 1) as f64;
-        SourceSpacing::Degrees { x: step, y: step, centre_lat_deg: lat + 0.5 }
+    let corner = parse_tile_name(path);
+    let step = 1.0 / (side - 1) as f64;
+    let spacing = corner.map(|(lat, _lon)| SourceSpacing::Degrees { x: step, y: step, centre_lat_deg: lat + 0.5 });
+    // SRTM tiles are WGS 84 longitude and latitude with EGM96 heights in metres, their posts on
+    // whole degrees at the tile's corners (the south-west one named by the file).
+    let georef = corner.map(|(lat, lon)| Georef {
+        kind: CrsKind::Geographic,
+        epsg: 4326,
+        unit: unit::DEGREE,
+        vertical_epsg: 5773,
+        vertical_unit: unit::METRE,
+        origin: [lon, lat],
+        step: [step, step],
     });
     let info = DemInfo {
         format: DemFormat::Hgt,
@@ -83,6 +94,7 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
         spacing,
         nodata: Some(f64::from(VOID)),
         sample_type: "int16 big-endian".into(),
+        georef,
     };
     Ok(Box::new(Hgt { path: path.to_path_buf(), info }))
 }

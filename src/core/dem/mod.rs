@@ -10,7 +10,10 @@ mod asc;
 mod exr;
 mod geotiff;
 mod hgt;
+mod mosaic;
 mod png;
+
+pub use mosaic::Mosaic;
 
 use std::fs::File;
 use std::io::Read;
@@ -96,6 +99,8 @@ pub struct DemInfo {
     pub nodata: Option<f64>,
     /// Sample type as stored, e.g. "int16", "float32", "uint8 rgb".
     pub sample_type: String,
+    /// The CRS and where the posts lie in it, if the file says (see [`crate::georef`]).
+    pub georef: Option<crate::georef::Georef>,
 }
 
 /// A run of consecutive samples on one row: `values[k]` is the sample at column `x0 + k` of row
@@ -133,6 +138,37 @@ pub fn open(path: &Path, format: Option<DemFormat>) -> Result<Box<dyn DemSource>
         DemFormat::Hgt => hgt::open(path),
         DemFormat::Asc => asc::open(path),
     }
+}
+
+/// Extensions of the files a directory given as a mosaic contributes (any case).
+const TILE_EXTENSIONS: [&str; 7] = ["tif", "tiff", "hgt", "asc", "png", "exr", "vrt"];
+
+/// The tiles `inputs` name: files as given, directories as the DEM files directly inside them
+/// (by extension, sorted by name). An error names a directory with none.
+pub fn expand_inputs(inputs: &[std::path::PathBuf]) -> Result<Vec<std::path::PathBuf>> {
+    let mut out = Vec::new();
+    for p in inputs {
+        if !p.is_dir() {
+            out.push(p.clone());
+            continue;
+        }
+        let mut files: Vec<std::path::PathBuf> = std::fs::read_dir(p)
+            .at(p)?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|f| {
+                f.is_file()
+                    && f.extension()
+                        .and_then(|e| e.to_str())
+                        .is_some_and(|e| TILE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+            })
+            .collect();
+        if files.is_empty() {
+            return Err(Error::bad_dem(p, format!("directory holds no DEM files (.{})", TILE_EXTENSIONS.join(", ."))));
+        }
+        files.sort();
+        out.extend(files);
+    }
+    Ok(out)
 }
 
 /// Detects the format of `path` from its content and name.

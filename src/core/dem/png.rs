@@ -215,7 +215,7 @@ pub(super) fn open(path: &Path, format: DemFormat) -> Result<Box<dyn DemSource>>
         Layout::Rgb { channels: 3, .. } => "uint8 rgb".to_string(),
         Layout::Rgb { .. } => "uint8 rgba".to_string(),
     };
-    let info = DemInfo { format, width, height, spacing: None, nodata: None, sample_type };
+    let info = DemInfo { format, width, height, spacing: None, nodata: None, sample_type, georef: None };
     Ok(Box::new(PngSource { path: path.to_path_buf(), info }))
 }
 

@@ -81,6 +81,19 @@ impl FileKind {
         }
     }
 
+    /// The oldest version this build reads (it writes [`Self::version`]).
+    pub fn oldest_version(self) -> u32 {
+        match self {
+            FileKind::Terrain => terrain::OLDEST_VERSION,
+            _ => self.version(),
+        }
+    }
+
+    /// Whether this build reads `version` of this kind.
+    pub fn reads_version(self, version: u32) -> bool {
+        (self.oldest_version()..=self.version()).contains(&version)
+    }
+
     /// The kind whose magic `bytes` start with.
     pub fn of_magic(bytes: &[u8]) -> Option<FileKind> {
         FileKind::ALL.into_iter().find(|k| bytes.len() >= 8 && bytes[..8] == k.magic())
@@ -113,6 +126,10 @@ impl Problem {
     pub fn describe(&self, kind: FileKind) -> String {
         match self {
             Problem::BadMagic => format!("not a relief {kind} (bad magic)"),
+            Problem::Version { found, supported } if kind.oldest_version() < *supported => {
+                let oldest = kind.oldest_version();
+                format!("{kind} version {found} is not supported (this build reads versions {oldest} to {supported})")
+            }
             Problem::Version { found, supported } => {
                 format!("{kind} version {found} is not supported (this build reads version {supported})")
             }
@@ -196,7 +213,7 @@ impl HeaderBytes {
             return Err(Problem::BadMagic);
         }
         let version = self.u32(8);
-        if version != kind.version() {
+        if !kind.reads_version(version) {
             return Err(Problem::Version { found: version, supported: kind.version() });
         }
         let (stored, computed) = (self.u64(CHECKSUM_AT), self.computed_checksum());
@@ -243,7 +260,7 @@ pub fn decode_header<F: Format>(path: &Path, bytes: &[u8], file_len: u64) -> Res
     }
     if bytes.len() >= 12 {
         let version = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
-        if version != F::KIND.version() {
+        if !F::KIND.reads_version(version) {
             return Err(err(Problem::Version { found: version, supported: F::KIND.version() }));
         }
     }

@@ -4,7 +4,7 @@
 //! ```text
 //! offset size  field
 //!      0    8  magic "\x89RELIEF\n"
-//!      8    4  version (1)
+//!      8    4  version (2; version 1, without the CRS fields at 184..232, is still read)
 //!     12    4  header bytes (256)
 //!     16    4  layout code (0 row-major, 1 tiled, 2 interleaved, 3 embedded, 4 hz)
 //!     20    4  layout parameter (tile side for tiled, else 0)
@@ -26,11 +26,21 @@
 //!    136   16  z min, z max over the valid window, metres (f64)
 //!    152    8  nodata samples filled (u64)
 //!    160   24  source centre latitude and post spacing x, y in degrees (f64; NaN if projected)
-//!    184   56  reserved (0)
+//!    184    4  CRS: EPSG code of the horizontal CRS (0: none named)          [version 2]
+//!    188    2  CRS kind (0 unknown, 1 projected, 2 geographic)
+//!    190    2  CRS horizontal unit (EPSG unit code; 0 not stated)
+//!    192    4  CRS: EPSG code of the vertical CRS (0: none named)
+//!    196    2  CRS vertical unit of the source heights (EPSG unit code; 0 not stated)
+//!    198    2  CRS flags (bit 0: georeferenced, the fields 184..232 hold a CRS and placement)
+//!    200   16  CRS coordinates of grid post (0, 0) (f64 x, y)
+//!    216   16  CRS units from post to post, east and north (f64, positive)
+//!    232    8  void mask offset (0: no mask; else a multiple of 4096 after the payload)
 //!    240    8  payload checksum: XXH3-64 over the XXH3-64s of 786,432-byte payload blocks
 //!    248    8  header checksum: XXH3-64 of bytes 0..248
 //! ```
-//! Records in unused slots of the index space are all zero bytes. The header checksum is verified
+//! Records in unused slots of the index space are all zero bytes. Where the DEM had nodata, a
+//! void mask follows the payload at its own page: an XXH3-64 of the bits, then one bit per post of
+//! the valid window, row by row from the south, least significant bit first ([`VoidMask`]). The header checksum is verified
 //! on every open (it is cheap); the payload checksum only on request ([`TerrainFile::verify_payload`]).
 
 use std::path::{Path, PathBuf};
@@ -40,11 +50,14 @@ use bytemuck::{Pod, Zeroable};
 
 use super::{read_header, FileKind, Format, HeaderBytes, Problem};
 use crate::error::{Error, Result};
+use crate::georef::{CrsKind, Georef};
 use crate::layout::hierarchy::{Grid, MAX_N};
 use crate::layout::{AnyLayout, Layout, LayoutKind};
 use crate::pager::{source, Access, FixedBlocks, Pager};
 
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
+/// The oldest version this build reads (version 1 has no CRS: its bytes 184..232 are zero).
+pub const OLDEST_VERSION: u32 = 1;
 pub const HEADER_BYTES: usize = super::HEADER_BYTES;
 /// Records start on this boundary (one page), so a record never shares a page with the header.
 pub const PAYLOAD_OFFSET: u64 = 4096;
@@ -91,6 +104,10 @@ pub struct Header {
     pub source_centre_lat_deg: f64,
     /// Post spacing of a geographic source grid in degrees (NaN if projected).
     pub source_spacing_deg: [f64; 2],
+    /// The source's CRS and the grid's placement in it, where the source said (version 2).
+    pub georef: Option<Georef>,
+    /// Where the void mask starts (0: the file has none; every post was data).
+    pub void_mask_offset: u64,
     pub payload_checksum: u64,
 }
 
@@ -108,6 +125,25 @@ impl Header {
     pub fn extent_m(&self) -> [f64; 2] {
         let spans = (self.grid().size() - 1) as f64;
         [spans * self.spacing_m[0], spans * self.spacing_m[1]]
+    }
+
+    /// Bytes of the void mask's bits: one per post of the valid window.
+    pub fn void_mask_bits_bytes(&self) -> u64 {
+        let [x0, y0, x1, y1] = self.valid_window;
+        ((x1 - x0) as u64 * (y1 - y0) as u64).div_ceil(8)
+    }
+
+    /// Where the void mask would start: the first page after the payload.
+    pub fn void_mask_start(&self) -> u64 {
+        (self.payload_offset + self.payload_bytes).next_multiple_of(4096)
+    }
+
+    /// The file's exact length.
+    pub fn file_len(&self) -> u64 {
+        match self.void_mask_offset {
+            0 => self.payload_offset + self.payload_bytes,
+            at => at + 8 + self.void_mask_bits_bytes(),
+        }
     }
 
     /// The file's layout, rebuilt from the header.
@@ -148,6 +184,17 @@ impl Format for Header {
         h.put_f64(160, self.source_centre_lat_deg);
         h.put_f64(168, self.source_spacing_deg[0]);
         h.put_f64(176, self.source_spacing_deg[1]);
+        if let Some(g) = &self.georef {
+            h.put_u32(184, g.epsg);
+            h.put_u32(188, g.kind as u32 | u32::from(g.unit) << 16);
+            h.put_u32(192, g.vertical_epsg);
+            h.put_u32(196, u32::from(g.vertical_unit) | 1 << 16);
+            h.put_f64(200, g.origin[0]);
+            h.put_f64(208, g.origin[1]);
+            h.put_f64(216, g.step[0]);
+            h.put_f64(224, g.step[1]);
+        }
+        h.put_u64(232, self.void_mask_offset);
         h.put_u64(240, self.payload_checksum);
     }
 
@@ -185,6 +232,8 @@ impl Format for Header {
             nodata_filled: b.u64(152),
             source_centre_lat_deg: b.f64(160),
             source_spacing_deg: [b.f64(168), b.f64(176)],
+            georef: decode_georef(b).map_err(bad)?,
+            void_mask_offset: b.u64(232),
             payload_checksum: b.u64(240),
         };
         if h.record_format != RECORD_FORMAT_F32 || h.record_bytes != RECORD_BYTES {
@@ -221,12 +270,43 @@ impl Format for Header {
         if !(h.z_min.is_finite() && h.z_max.is_finite() && h.z_min <= h.z_max) {
             return Err(bad(format!("height range {}..{} is not finite", h.z_min, h.z_max)));
         }
-        let expected = h.payload_offset + h.payload_bytes;
+        if h.void_mask_offset != 0 && h.void_mask_offset != h.void_mask_start() {
+            return Err(bad(format!(
+                "void mask offset {} (expected {}, the page after the payload)",
+                h.void_mask_offset,
+                h.void_mask_start()
+            )));
+        }
+        let expected = h.file_len();
         if file_len != expected {
             return Err(Problem::Truncated { expected, found: file_len });
         }
         Ok(h)
     }
+}
+
+/// The CRS fields (bytes 184..232), present when flag bit 0 at 198 is set (never in version 1,
+/// whose bytes there are zero).
+fn decode_georef(b: &HeaderBytes) -> std::result::Result<Option<Georef>, String> {
+    let flags = b.u32(196) >> 16;
+    if flags & 1 == 0 {
+        return Ok(None);
+    }
+    let code = (b.u32(188) & 0xffff) as u16;
+    let kind = CrsKind::from_code(code).ok_or_else(|| format!("unknown CRS kind {code}"))?;
+    let g = Georef {
+        kind,
+        epsg: b.u32(184),
+        unit: (b.u32(188) >> 16) as u16,
+        vertical_epsg: b.u32(192),
+        vertical_unit: (b.u32(196) & 0xffff) as u16,
+        origin: [b.f64(200), b.f64(208)],
+        step: [b.f64(216), b.f64(224)],
+    };
+    if !g.is_valid() {
+        return Err(format!("CRS placement origin {:?}, step {:?} is not finite and positive", g.origin, g.step));
+    }
+    Ok(Some(g))
 }
 
 /// Records per pager block: 1,024 records are 12 KiB, three 4 KiB pages, so a block holds whole
@@ -397,8 +477,31 @@ impl TerrainFile {
         self.pager.start_cold()
     }
 
-    /// Recomputes the payload checksum and compares it with the header's.
+    /// Which posts of the DEM were nodata (read from the file each call; `None` when none were).
+    pub fn void_mask(&self) -> Result<Option<VoidMask>> {
+        let h = &self.header;
+        if h.void_mask_offset == 0 {
+            return Ok(None);
+        }
+        let mut bytes = vec![0u8; 8 + h.void_mask_bits_bytes() as usize];
+        self.pager.source().read_at(h.void_mask_offset, &mut bytes)?;
+        let stored = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes"));
+        bytes.drain(..8);
+        Ok(Some(VoidMask { window: h.valid_window, bits: bytes, stored_checksum: stored }))
+    }
+
+    /// Recomputes the payload checksum (and the void mask's) and compares with the stored ones.
     pub fn verify_payload(&self) -> Result<()> {
+        if let Some(mask) = self.void_mask()? {
+            let computed = mask.checksum();
+            if computed != mask.stored_checksum {
+                return Err(super::file_error(
+                    &self.path,
+                    FileKind::Terrain,
+                    Problem::Checksum { which: "void mask", stored: mask.stored_checksum, computed },
+                ));
+            }
+        }
         let computed = match self.mapped_payload() {
             Some(p) => payload_checksum(p),
             None => {
@@ -423,6 +526,57 @@ impl TerrainFile {
             ));
         }
         Ok(())
+    }
+}
+
+/// Which posts of a terrain's valid window were nodata in the DEM (their heights in the records
+/// are filled in, for the hierarchy): one bit per post, row by row from the south (grid row
+/// `y0`), least significant bit first.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VoidMask {
+    /// The valid window `[x0, y0, x1, y1)` the bits cover, grid posts.
+    pub window: [u32; 4],
+    /// `ceil(w·h / 8)` bytes; bits past `w·h` are zero.
+    pub bits: Vec<u8>,
+    stored_checksum: u64,
+}
+
+impl VoidMask {
+    /// An all-data mask over `window`.
+    pub fn new(window: [u32; 4]) -> VoidMask {
+        let [x0, y0, x1, y1] = window;
+        let bytes = ((x1 - x0) as u64 * (y1 - y0) as u64).div_ceil(8) as usize;
+        VoidMask { window, bits: vec![0; bytes], stored_checksum: 0 }
+    }
+
+    fn bit(&self, x: u32, y: u32) -> Option<usize> {
+        let [x0, y0, x1, y1] = self.window;
+        if x < x0 || y < y0 || x >= x1 || y >= y1 {
+            return None;
+        }
+        Some((y - y0) as usize * (x1 - x0) as usize + (x - x0) as usize)
+    }
+
+    /// Marks grid post `(x, y)` void (outside the window: ignored).
+    pub fn set(&mut self, x: u32, y: u32) {
+        if let Some(i) = self.bit(x, y) {
+            self.bits[i / 8] |= 1 << (i % 8);
+        }
+    }
+
+    /// Whether grid post `(x, y)` was nodata (padding outside the window is not).
+    pub fn is_void(&self, x: u32, y: u32) -> bool {
+        self.bit(x, y).is_some_and(|i| self.bits[i / 8] >> (i % 8) & 1 == 1)
+    }
+
+    /// Void posts.
+    pub fn count(&self) -> u64 {
+        self.bits.iter().map(|b| b.count_ones() as u64).sum()
+    }
+
+    /// XXH3-64 of the bits, as stored before them.
+    pub fn checksum(&self) -> u64 {
+        xxhash_rust::xxh3::xxh3_64(&self.bits)
     }
 }
 
@@ -478,6 +632,8 @@ mod tests {
             nodata_filled: 2,
             source_centre_lat_deg: f64::NAN,
             source_spacing_deg: [f64::NAN, f64::NAN],
+            georef: None,
+            void_mask_offset: 0,
             payload_checksum: 0x0123_4567_89ab_cdef,
         }
     }
@@ -513,7 +669,7 @@ mod tests {
         assert_eq!(problem(decode(&m, 0)), Problem::BadMagic);
         let mut m = b;
         m[8] = 9;
-        assert_eq!(problem(decode(&m, 0)), Problem::Version { found: 9, supported: 1 });
+        assert_eq!(problem(decode(&m, 0)), Problem::Version { found: 9, supported: VERSION });
         let mut m = b;
         m[100] ^= 1;
         assert!(matches!(problem(decode(&m, file_len(&h))), Problem::Checksum { which: "header", .. }));
@@ -527,8 +683,31 @@ mod tests {
         let mut bad = h.clone();
         bad.valid_window = [0, 0, 10, 9];
         assert!(decode(&bad.encode().0, file_len(&h)).is_err());
-        let mut bad = h;
+        let mut bad = h.clone();
         bad.spacing_m = [0.0, 1.0];
         assert!(decode(&bad.encode().0, file_len(&bad)).is_err());
+        // A void mask must start on the page after the payload, and the file must hold it.
+        let mut masked = h.clone();
+        masked.void_mask_offset = masked.void_mask_start();
+        assert_eq!(masked.file_len(), 8192 + 8 + 8, "7 x 9 posts are 63 bits");
+        assert!(decode(&masked.encode().0, masked.file_len()).is_ok());
+        assert!(matches!(problem(decode(&masked.encode().0, file_len(&h))), Problem::Truncated { .. }));
+        masked.void_mask_offset += 4096;
+        let e = decode(&masked.encode().0, masked.file_len()).unwrap_err();
+        assert!(e.to_string().contains("void mask offset"), "{e}");
+    }
+
+    #[test]
+    fn void_mask_bits_are_posts_of_the_window() {
+        let mut m = VoidMask::new([2, 3, 7, 6]);
+        assert_eq!(m.bits.len(), 2, "5 x 3 posts");
+        m.set(2, 3);
+        m.set(6, 5);
+        m.set(7, 5); // outside: ignored
+        m.set(1, 4);
+        assert_eq!(m.count(), 2);
+        assert!(m.is_void(2, 3) && m.is_void(6, 5));
+        assert!(!m.is_void(3, 3) && !m.is_void(7, 5) && !m.is_void(0, 0));
+        assert_eq!(m.bits, [0b0000_0001, 0b0100_0000]);
     }
 }

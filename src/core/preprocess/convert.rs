@@ -21,7 +21,7 @@ use serde::Serialize;
 use crate::dem::{self, DemFormat, Run, SourceSpacing};
 use crate::error::{Error, IoContext, Result};
 use crate::format::terrain::{
-    self, Header, Record, TerrainFile, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED, PAYLOAD_OFFSET, RECORD_BYTES,
+    self, Header, Record, TerrainFile, VoidMask, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED, PAYLOAD_OFFSET, RECORD_BYTES,
 };
 use crate::layout::hierarchy::{Grid, MAX_N};
 use crate::layout::{AnyLayout, Layout, LayoutKind};
@@ -225,6 +225,20 @@ pub fn convert(input: &Path, output: &Path, opts: &ConvertOptions) -> Result<Con
     convert_source(input, None, output, opts)
 }
 
+/// Converts several DEM tiles (files, or directories of them: [`dem::expand_inputs`]) into one
+/// terrain, each placed by its georeferencing ([`dem::Mosaic`]); one file alone is [`convert`].
+pub fn convert_many(inputs: &[PathBuf], output: &Path, opts: &ConvertOptions) -> Result<ConvertReport> {
+    let Some(label) = inputs.first() else {
+        return Err(Error::InvalidArgument("no input DEM".into()));
+    };
+    if inputs.len() == 1 && !label.is_dir() {
+        return convert(label, output, opts);
+    }
+    let tiles = dem::expand_inputs(inputs)?;
+    let mosaic = dem::Mosaic::open(&tiles, opts.format)?;
+    convert_source(label, Some(Box::new(mosaic)), output, opts)
+}
+
 /// Writes `terrain` again in another layout (`opts.layout`): the DEM's own posts (its valid
 /// window) are read back from the file and converted as if they came from the DEM, so the result
 /// equals converting the original DEM (heights are taken as metres: `z_scale` 1, offset 0).
@@ -253,6 +267,13 @@ impl<'a> TerrainSource<'a> {
             spacing: Some(dem::SourceSpacing::Metres { x: h.spacing_m[0], y: h.spacing_m[1] }),
             nodata: None,
             sample_type: "float32 (relief terrain file)".into(),
+            // Heights here are metres already: the source's vertical unit was applied when it
+            // was converted.
+            georef: h.georef.map(|g| crate::georef::Georef {
+                origin: g.crs_of_post([x0 as f64, y0 as f64]),
+                vertical_unit: crate::georef::unit::METRE,
+                ..g
+            }),
         };
         TerrainSource { terrain, info }
     }
@@ -265,12 +286,18 @@ impl dem::DemSource for TerrainSource<'_> {
 
     fn read(&mut self, sink: &mut dyn FnMut(dem::Run<'_>) -> Result<()>) -> Result<()> {
         let [x0, y0, x1, y1] = self.terrain.header().valid_window;
+        // Void posts go back as nodata: filled again the same way, they keep their mask.
+        let mask = self.terrain.void_mask()?;
         let mut row = vec![0f64; (x1 - x0) as usize];
         for r in 0..(y1 - y0) {
             // Grid row y counts from the south; DEM row 0 is the northernmost.
             let y = y1 - 1 - r;
             for (k, v) in row.iter_mut().enumerate() {
-                *v = self.terrain.record_at(x0 + k as u32, y)?.z as f64;
+                let x = x0 + k as u32;
+                *v = match &mask {
+                    Some(m) if m.is_void(x, y) => f64::NAN,
+                    _ => self.terrain.record_at(x, y)?.z as f64,
+                };
             }
             sink(dem::Run { row: r, x0: 0, values: &row })?;
         }
@@ -315,6 +342,9 @@ fn convert_source(
     let layout =
         AnyLayout::new(opts.layout, grid, opts.tile.unwrap_or(0), RECORD_BYTES).map_err(Error::InvalidArgument)?;
     let (spacing_m, spacing_source, flags, centre_lat, spacing_deg) = resolve_spacing(opts, info.spacing);
+    // Heights in metres: the source's vertical unit (feet, where its GeoKeys say so), then the
+    // user's scale.
+    let z_scale = opts.z_scale * info.georef.map_or(1.0, |g| g.vertical_metres());
 
     let out_dir = match output.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
@@ -357,8 +387,9 @@ fn convert_source(
     let t = Instant::now();
     let bar = opts.progress.bar("read", width as u64 * height as u64, "samples");
     let (mut nan_count, mut z_min, mut z_max) = (0u64, f64::INFINITY, f64::NEG_INFINITY);
+    let mut void_mask: Option<VoidMask> = None;
     {
-        let (z_scale, z_offset) = (opts.z_scale, opts.z_offset);
+        let (z_scale, z_offset) = (z_scale, opts.z_offset);
         // Readers are mostly sequential; fault the grid's pages in on the other core meanwhile
         // (the kernel zeroes each fresh page-cache page, a large share of this step's cost).
         let prefault = Prefault::new(z_grid);
@@ -402,9 +433,19 @@ fn convert_source(
             return Err(Error::NoValidSamples { path: input.into() });
         }
 
-        // 2. Fill voids and pad.
+        // 2. Keep which posts were void, then fill them and pad.
         let t = Instant::now();
         if nan_count > 0 {
+            let mut mask = VoidMask::new([0, 0, width, height]);
+            for y in 0..height {
+                let row = &z_grid[y as usize * side..y as usize * side + width as usize];
+                for (x, z) in row.iter().enumerate() {
+                    if z.is_nan() {
+                        mask.set(x as u32, y);
+                    }
+                }
+            }
+            void_mask = Some(mask);
             let filled = fill::fill_voids(z_grid, bounds_grid, side, width as usize, height as usize);
             debug_assert_eq!(filled, nan_count);
             // Filled values are weighted means of valid ones, but f32 rounding can step just
@@ -432,9 +473,9 @@ fn convert_source(
     drop((z_map, bounds_map));
     steps.layout = t.elapsed().as_secs_f64();
 
-    // 5. Header, sync, rename.
+    // 5. Void mask, header, sync, rename.
     let t = Instant::now();
-    let header = Header {
+    let mut header = Header {
         version: terrain::VERSION,
         layout: layout.kind(),
         layout_param: layout.param(),
@@ -448,18 +489,27 @@ fn convert_source(
         payload_offset: PAYLOAD_OFFSET,
         payload_bytes,
         spacing_m,
-        z_scale: opts.z_scale,
+        z_scale,
         z_offset: opts.z_offset,
         z_min,
         z_max,
         nodata_filled: nan_count,
         source_centre_lat_deg: centre_lat,
         source_spacing_deg: spacing_deg,
+        georef: info.georef,
+        void_mask_offset: 0,
         payload_checksum,
     };
     cancel::check()?;
     {
         use std::os::unix::fs::FileExt;
+        if let Some(mask) = &void_mask {
+            header.void_mask_offset = header.void_mask_start();
+            let at = header.void_mask_offset;
+            out_file.set_len(header.file_len()).map_err(|e| file_system_limit(e, output, header.file_len()))?;
+            out_file.write_all_at(&mask.checksum().to_le_bytes(), at).at(output)?;
+            out_file.write_all_at(&mask.bits, at + 8).at(output)?;
+        }
         out_file.write_all_at(&crate::format::Format::encode(&header).0, 0).at(output)?;
     }
     out_file.sync_all().at(output)?;
@@ -486,7 +536,7 @@ fn convert_source(
         nodata_filled: nan_count,
         z_min,
         z_max,
-        file_bytes: file_len,
+        file_bytes: header.file_len(),
         seconds,
         steps,
         vertices_per_s: grid.vertices() as f64 / seconds,

@@ -6,6 +6,7 @@ use serde::Serialize;
 use crate::dem::DemFormat;
 use crate::error::Result;
 use crate::format::terrain::{Record, TerrainFile, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED};
+use crate::georef::{unit, CrsKind, Georef};
 use crate::layout::Layout;
 use crate::preprocess::nesting_violation;
 use crate::sys::cancel;
@@ -26,6 +27,14 @@ pub struct Info {
     pub record_bytes: u32,
     pub spacing_m: [f64; 2],
     pub spacing_assumed: bool,
+    /// Posts of the data (the valid window), east and north.
+    pub data_posts: [u32; 2],
+    /// Extent of the data, metres, from its first post to its last (posts span posts − 1
+    /// spacings).
+    pub data_extent_m: [f64; 2],
+    /// Local metres of the data's south-west post (the grid's south-west corner is 0, 0).
+    pub data_origin_m: [f64; 2],
+    /// Extent of the whole grid, padding included, metres.
     pub extent_m: [f64; 2],
     pub z_min: f64,
     pub z_max: f64,
@@ -33,10 +42,14 @@ pub struct Info {
     pub z_offset: f64,
     pub valid_window: [u32; 4],
     pub nodata_filled: u64,
+    /// Whether the file keeps which posts were nodata (a void mask, drawn as no data).
+    pub void_mask: bool,
     pub source_format: String,
     /// Present when the source grid was geographic: its posts in degrees and the latitude at which
     /// they were converted to metres.
     pub geographic: Option<Geographic>,
+    /// The source's CRS and the data's place in it, where the source said.
+    pub crs: Option<CrsInfo>,
     pub file_bytes: u64,
     pub payload_checksum: String,
 }
@@ -47,8 +60,57 @@ pub struct Geographic {
     pub centre_lat_deg: f64,
 }
 
+/// The CRS of a terrain's source and where its data lies in it (see [`crate::georef`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct CrsInfo {
+    /// `EPSG:n`, or what is known without a code.
+    pub name: String,
+    pub kind: CrsKind,
+    pub epsg: Option<u32>,
+    /// Unit of the coordinates, e.g. "metre", "degree"; `None` when not stated.
+    pub unit: Option<String>,
+    pub unit_code: Option<u16>,
+    pub vertical_epsg: Option<u32>,
+    /// Unit of the source's heights (converted to metres in the file); `None` when not stated.
+    pub vertical_unit: Option<String>,
+    pub vertical_unit_code: Option<u16>,
+    /// CRS coordinates of the data's south-west post.
+    pub origin: [f64; 2],
+    /// CRS units between posts, east and north.
+    pub step: [f64; 2],
+    /// The data's posts in CRS coordinates: `[x_min, y_min, x_max, y_max]`.
+    pub extent: [f64; 4],
+    /// CRS coordinates of the grid's post (0, 0) (local metres 0, 0).
+    pub grid_origin: [f64; 2],
+}
+
+impl CrsInfo {
+    fn new(g: &Georef, valid_window: [u32; 4]) -> CrsInfo {
+        let [x0, y0, x1, y1] = valid_window.map(f64::from);
+        let sw = g.crs_of_post([x0, y0]);
+        let ne = g.crs_of_post([x1 - 1.0, y1 - 1.0]);
+        let code = |c: u32| (c != 0).then_some(c);
+        let unit_of = |c: u16| (c != 0).then(|| unit::name(c).map_or(format!("EPSG unit {c}"), String::from));
+        CrsInfo {
+            name: g.crs_label(),
+            kind: g.kind,
+            epsg: code(g.epsg),
+            unit: unit_of(g.unit),
+            unit_code: (g.unit != 0).then_some(g.unit),
+            vertical_epsg: code(g.vertical_epsg),
+            vertical_unit: unit_of(g.vertical_unit),
+            vertical_unit_code: (g.vertical_unit != 0).then_some(g.vertical_unit),
+            origin: sw,
+            step: g.step,
+            extent: [sw[0], sw[1], ne[0], ne[1]],
+            grid_origin: g.origin,
+        }
+    }
+}
+
 pub fn info(file: &TerrainFile) -> Info {
     let h = file.header();
+    let [x0, y0, x1, y1] = h.valid_window;
     let geographic = (h.flags & FLAG_GEOGRAPHIC != 0)
         .then_some(Geographic { spacing_deg: h.source_spacing_deg, centre_lat_deg: h.source_centre_lat_deg });
     Info {
@@ -64,6 +126,9 @@ pub fn info(file: &TerrainFile) -> Info {
         record_bytes: h.record_bytes,
         spacing_m: h.spacing_m,
         spacing_assumed: h.flags & FLAG_SPACING_ASSUMED != 0,
+        data_posts: [x1 - x0, y1 - y0],
+        data_extent_m: [f64::from(x1 - x0 - 1) * h.spacing_m[0], f64::from(y1 - y0 - 1) * h.spacing_m[1]],
+        data_origin_m: [f64::from(x0) * h.spacing_m[0], f64::from(y0) * h.spacing_m[1]],
         extent_m: h.extent_m(),
         z_min: h.z_min,
         z_max: h.z_max,
@@ -71,9 +136,11 @@ pub fn info(file: &TerrainFile) -> Info {
         z_offset: h.z_offset,
         valid_window: h.valid_window,
         nodata_filled: h.nodata_filled,
+        void_mask: h.void_mask_offset != 0,
         source_format: DemFormat::ALL.get(h.source_format as usize).map(|f| f.name()).unwrap_or("unknown").into(),
         geographic,
-        file_bytes: h.payload_offset + h.payload_bytes,
+        crs: h.georef.as_ref().map(|g| CrsInfo::new(g, h.valid_window)),
+        file_bytes: h.file_len(),
         payload_checksum: format!("{:016x}", h.payload_checksum),
     }
 }
