@@ -28,7 +28,7 @@ struct Frame {
     valid_window: vec4<f32>,
     // The height cache: (1 when heights come from it, else 0; tile cells per side T; levels; 0).
     cache: vec4<u32>,
-    // Nodata: (style: 0 drawn as the filled heights, 1 not drawn, 2 water at 0 m; 1 when the
+    // Nodata: (style: 0 drawn as the filled heights, 1 not drawn, 2 shaded as water; 1 when the
     // void mask below is the file's; 0; 0).
     nodata: vec4<u32>,
 };
@@ -111,12 +111,7 @@ struct VertexOut {
 };
 
 fn vertex_at(grid: vec2<u32>, z_m: f32, towards_eye: f32) -> VertexOut {
-    var z = z_m;
-    // Nodata drawn as sea: its posts sit at 0 m (their filled heights only serve the hierarchy).
-    if (frame.nodata.x == 2u && post_is_void(i32(grid.x), i32(grid.y))) {
-        z = 0.0;
-    }
-    let world = vec3<f32>(f32(grid.x) * frame.world_from_grid.x, f32(grid.y) * frame.world_from_grid.y, z);
+    let world = vec3<f32>(f32(grid.x) * frame.world_from_grid.x, f32(grid.y) * frame.world_from_grid.y, z_m);
     // Subtract in f32 before projecting: keeps precision near the eye on large terrains.
     let rel = (world - frame.eye_in_world.xyz) * towards_eye;
     var out: VertexOut;

@@ -210,8 +210,8 @@ pub struct GpuArgs {
     #[arg(long, value_name = "BYTES")]
     pub gpu_upload: Option<String>,
     /// How to draw the DEM's nodata posts (kept by `convert` as a void mask; `info` counts them):
-    /// not at all, like the padding around the DEM (void); as water at 0 m (sea-level); or as the
-    /// heights filled in for the level-of-detail hierarchy (filled)
+    /// not at all, like the padding around the DEM (void); shaded as calm water at the heights
+    /// filled in for the level-of-detail hierarchy (sea-level); or as those filled heights (filled)
     #[arg(long, value_name = "STYLE", value_enum, default_value_t = relief::render::NodataStyle::Void)]
     pub nodata_as: relief::render::NodataStyle,
 }

@@ -2,7 +2,7 @@
 //! the pipelines (terrain, geomorphed terrain, wireframe, sky, and the probe used by tests).
 //!
 //! Per refinement update only the strip is uploaded: 8 bytes per vertex (grid x, y as `u32`), plus
-//! 8 more with geomorphing (blend, morphed height). Per frame a 256-byte uniform follows the
+//! 8 more with geomorphing (blend, morphed height). Per frame a 272-byte uniform follows the
 //! camera. Positions are built in the vertex shader from the heights texture; the fragment shader
 //! shades from the full-resolution heights (CPU reference: `render::shade`).
 
@@ -101,7 +101,7 @@ pub enum NodataStyle {
     /// Not drawn: discarded like the padding around the DEM.
     #[default]
     Void,
-    /// A water surface at 0 m (voids that are sea, as in many coastal DEMs).
+    /// Calm water at the filled heights (voids that are sea, as in many coastal DEMs).
     SeaLevel,
     /// The heights filled in for the hierarchy, drawn as terrain.
     Filled,
@@ -288,7 +288,9 @@ impl TerrainRenderer {
                 },
                 wgpu::BindGroupLayoutEntry {
                     binding: 3,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    // Fragment only: a storage buffer read in the vertex stage made lavapipe's
+                    // memory grow by ~100 KiB a frame (tests/long_flight.rs).
+                    visibility: wgpu::ShaderStages::FRAGMENT,
                     ty: wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Storage { read_only: true },
                         has_dynamic_offset: false,
