@@ -16,6 +16,8 @@ command -v xvfb-run >/dev/null || need+=(xvfb xauth)
 command -v xdotool >/dev/null || need+=(xdotool)
 # The coordinate-system tests compare with GDAL's own reading (gdalinfo, gdal_translate).
 command -v gdalinfo >/dev/null || need+=(gdal-bin)
+# The `gdal` feature (ZSTD, LERC, VRT, … through libgdal) links the system's GDAL.
+pkg-config --exists gdal 2>/dev/null || need+=(libgdal-dev pkg-config)
 if [ ${#need[@]} -gt 0 ] && command -v apt-get >/dev/null; then
   sudo=""; [ "$(id -u)" -eq 0 ] || sudo="sudo"
   echo "tools/test.sh: installing ${need[*]}" >&2
@@ -26,4 +28,4 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "$XDG_RUNTIME_DIR" ]; then
   export XDG_RUNTIME_DIR="$(mktemp -d)"
   chmod 700 "$XDG_RUNTIME_DIR"
 fi
-cargo test --locked --workspace --all-targets
+cargo test --locked --workspace --all-targets --features gdal

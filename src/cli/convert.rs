@@ -39,9 +39,14 @@ pub struct Args {
     /// Add this many metres after scaling (e.g. -30 for a datum 30 m above the source's zero).
     #[arg(long, value_name = "M", default_value_t = 0.0, allow_negative_numbers = true)]
     pub z_offset: f64,
-    /// Force the input format instead of detecting it.
+    /// Force the input format instead of detecting it (`gdal`: any raster GDAL reads, in a
+    /// build with the `gdal` feature).
     #[arg(long, value_parser = format_parser())]
     pub format: Option<DemFormat>,
+    /// Convert a lossy-compressed DEM (JPEG, lossy WebP, LERC with a maximum error, JPEG 2000)
+    /// rather than refuse it: its heights carry the codec's errors.
+    #[arg(long)]
+    pub allow_lossy: bool,
     /// Directory for the scratch grid (default: the output's directory). Needs about
     /// 12 bytes per post of the padded grid.
     #[arg(long, value_name = "DIR")]
@@ -82,6 +87,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     opts.z_scale = a.z_scale;
     opts.z_offset = a.z_offset;
     opts.format = a.format;
+    opts.allow_lossy = a.allow_lossy;
     opts.scratch_dir = a.scratch_dir;
     opts.progress = progress(a.quiet);
     let input = &a.inputs[0];

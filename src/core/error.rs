@@ -18,6 +18,9 @@ pub enum Error {
     BadDem { path: PathBuf, problem: String },
     #[error("{}: unsupported {what}", path.display())]
     Unsupported { path: PathBuf, what: String },
+    /// A lossy-compressed DEM, refused unless asked for (its heights carry the codec's errors).
+    #[error("{}: {what}; pass --allow-lossy to convert it anyway", path.display())]
+    Lossy { path: PathBuf, what: String },
     #[error("{}: no valid sample (every sample is nodata, void or NaN)", path.display())]
     NoValidSamples { path: PathBuf },
     /// A relief file (terrain, VDT, meta-node or page file) that is not one, is of another version,

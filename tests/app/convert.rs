@@ -271,6 +271,18 @@ fn interrupted_conversion_leaves_old_file_or_new_one() {
             .stderr(std::process::Stdio::piped())
             .spawn()
             .unwrap();
+        // Counted from when relief catches the signal (its SigCgt bit): before `main` no process
+        // can, and loading the shared libraries (libgdal's many, with the `gdal` feature) takes
+        // a varying part of the first 20 ms.
+        let caught = |pid: u32| {
+            let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+            let mask = status.lines().find_map(|l| l.strip_prefix("SigCgt:")).map(str::trim).unwrap_or("0");
+            u64::from_str_radix(mask, 16).unwrap_or(0) & (1 << (signal - 1)) != 0
+        };
+        let started = std::time::Instant::now();
+        while !caught(child.id()) && started.elapsed() < std::time::Duration::from_secs(10) {
+            std::thread::sleep(std::time::Duration::from_micros(200));
+        }
         std::thread::sleep(std::time::Duration::from_millis(delay_ms));
         unsafe { libc::kill(child.id() as i32, signal) };
         let res = child.wait_with_output().unwrap();

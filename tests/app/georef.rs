@@ -220,6 +220,26 @@ fn tiles_cut_from_a_real_dem_convert_to_the_dem() {
     assert_eq!(info(&gap)["nodata_filled"], 99 * 99);
     assert_eq!(info(&gap)["void_mask"], true);
     assert_eq!(info(&whole)["void_mask"], false);
+    // The same tiles as a GDAL virtual raster: the same terrain.
+    #[cfg(feature = "gdal")]
+    {
+        let vrt = dir.path().join("tiles.vrt");
+        let mut cmd = Command::new("gdalbuildvrt");
+        cmd.arg("-q").arg(&vrt);
+        for r in 0..4 {
+            for c in 0..4 {
+                cmd.arg(tiles.join(format!("tile_{r}_{c}.tif")));
+            }
+        }
+        let o = cmd.output().expect("gdalbuildvrt (Debian's gdal-bin)");
+        assert!(o.status.success(), "gdalbuildvrt: {}", stderr_of(&o));
+        let from_vrt = dir.path().join("vrt.relief");
+        convert(&vrt, &from_vrt);
+        let v = info(&from_vrt);
+        for key in ["payload_checksum", "z_min", "z_max", "valid_window", "spacing_m", "crs", "nodata_filled"] {
+            assert_eq!(w[key], v[key], "from the VRT: {key}");
+        }
+    }
     let mask = relief::format::terrain::TerrainFile::open(&gap).unwrap().void_mask().unwrap().unwrap();
     // The void is exactly the gap's posts not shared with a neighbour (north-counted rows and
     // columns 101..200 of 400; grid rows count from the south).
@@ -256,4 +276,108 @@ fn tiles_cut_from_a_real_dem_convert_to_the_dem() {
         assert!(e.contains(&format!("{}: {want}", bad.display())), "{e}");
         assert!(!out.exists());
     }
+}
+
+/// Converts `src` with extra flags; the command's output.
+fn convert_with(src: &Path, out: &Path, flags: &[&str]) -> std::process::Output {
+    relief().args(["convert", "--quiet"]).args(flags).arg(src).arg(out).output().unwrap()
+}
+
+/// Copies compressed by codecs the native TIFF reader lacks (ZSTD, LERC), read through GDAL,
+/// convert to the very same file as the original; a VRT and a NetCDF copy to the same records.
+#[cfg(feature = "gdal")]
+#[test]
+fn zstd_lerc_vrt_and_netcdf_copies_convert_to_the_original() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, copies) in [
+        ("zurich_25m_i16.tif", vec![vec!["-co", "COMPRESS=ZSTD"], vec!["-co", "COMPRESS=LERC_ZSTD"]]),
+        (
+            "lidar_1m_f32.tif",
+            vec![
+                vec!["-co", "COMPRESS=ZSTD", "-co", "PREDICTOR=3"],
+                vec!["-co", "COMPRESS=LERC", "-co", "MAX_Z_ERROR=0", "-co", "TILED=YES"],
+                vec!["-co", "COMPRESS=LERC_DEFLATE", "-co", "MAX_Z_ERROR=0"],
+            ],
+        ),
+    ] {
+        let src = dem(name);
+        let original = dir.path().join("original.relief");
+        convert(&src, &original);
+        let original_bytes = std::fs::read(&original).unwrap();
+        for (k, args) in copies.iter().enumerate() {
+            let copy = dir.path().join(format!("copy{k}.tif"));
+            gdal("gdal_translate", args, &src, &copy);
+            let out = dir.path().join(format!("copy{k}.relief"));
+            convert(&copy, &out);
+            assert!(std::fs::read(&out).unwrap() == original_bytes, "{name} {args:?}: not the same file");
+        }
+        // Other containers GDAL reads: the same records, placement and CRS (only the source
+        // format recorded in the header differs).
+        for (ext, args) in [("vrt", ["-of", "VRT"]), ("nc", ["-of", "netCDF"])] {
+            let copy = dir.path().join(format!("copy.{ext}"));
+            gdal("gdal_translate", &args, &src, &copy);
+            let out = dir.path().join(format!("copy_{ext}.relief"));
+            convert(&copy, &out);
+            let (a, b) = (info(&original), info(&out));
+            for key in ["payload_checksum", "z_min", "z_max", "valid_window", "spacing_m", "crs"] {
+                assert_eq!(a[key], b[key], "{name} as .{ext}: {key}");
+            }
+            assert_eq!(b["source_format"], "gdal");
+        }
+    }
+    // A broken VRT: one line naming it.
+    let bad = dir.path().join("bad.vrt");
+    std::fs::write(&bad, "<VRTDataset rasterXSize=").unwrap();
+    let o = convert_with(&bad, &dir.path().join("bad.relief"), &[]);
+    let e = stderr_of(&o);
+    assert!(!o.status.success() && e.trim_end().lines().count() == 1, "{e}");
+    assert!(e.contains(&format!("{}: GDAL: ", bad.display())) && e.contains("expected attribute value"), "{e}");
+}
+
+/// Lossy codecs are refused with one line naming the file and the codec, nothing written; with
+/// `--allow-lossy` they convert.
+#[test]
+fn lossy_compressed_dems_need_allow_lossy() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = dem("zurich_25m_i16.tif");
+    let jpeg = dir.path().join("jpeg.tif");
+    gdal("gdal_translate", &["-ot", "Byte", "-scale", "-co", "COMPRESS=JPEG"], &src, &jpeg);
+    let mut cases = vec![(jpeg, "JPEG compression is lossy".to_string())];
+    if cfg!(feature = "gdal") {
+        let lerc = dir.path().join("lerc.tif");
+        gdal("gdal_translate", &["-co", "COMPRESS=LERC_ZSTD", "-co", "MAX_Z_ERROR=2"], &src, &lerc);
+        cases.push((lerc, "LERC compression with a maximum error of 2 is lossy".into()));
+        let lidar = dir.path().join("lerc_f32.tif");
+        let args = ["-co", "COMPRESS=LERC_DEFLATE", "-co", "MAX_Z_ERROR=0.01"];
+        gdal("gdal_translate", &args, &dem("lidar_1m_f32.tif"), &lidar);
+        cases.push((lidar, "LERC compression with a maximum error of 0.01 is lossy".into()));
+    }
+    for (file, what) in cases {
+        let out = file.with_extension("relief");
+        let o = convert_with(&file, &out, &[]);
+        let e = stderr_of(&o);
+        assert!(!o.status.success() && e.trim_end().lines().count() == 1, "{e}");
+        let want = format!("{}: {what}; pass --allow-lossy to convert it anyway", file.display());
+        assert!(e.contains(&want), "{e}\nwanted: {want}");
+        assert!(!out.exists(), "a refused conversion wrote {}", out.display());
+        let o = convert_with(&file, &out, &["--allow-lossy"]);
+        assert!(o.status.success(), "{}", stderr_of(&o));
+        assert!(info(&out)["z_max"].as_f64().unwrap() > info(&out)["z_min"].as_f64().unwrap());
+    }
+}
+
+/// Without GDAL, a ZSTD GeoTIFF is refused with what to do about it.
+#[cfg(not(feature = "gdal"))]
+#[test]
+fn without_gdal_a_zstd_tiff_says_how_to_read_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let zstd = dir.path().join("zstd.tif");
+    gdal("gdal_translate", &["-co", "COMPRESS=ZSTD"], &dem("zurich_25m_i16.tif"), &zstd);
+    let o = convert_with(&zstd, &dir.path().join("out.relief"), &[]);
+    let e = stderr_of(&o);
+    assert!(!o.status.success() && e.trim_end().lines().count() == 1, "{e}");
+    assert!(
+        e.contains("unsupported TIFF compression ZSTD: reading it needs GDAL: build relief with `--features gdal`"),
+        "{e}"
+    );
 }

@@ -5,7 +5,10 @@
 //! spacing, the CRS's EPSG codes and units, and where the posts lie in it ([`Georef`]); nodata
 //! from GDAL's `GDAL_NODATA` tag.
 //!
-//! The image is streamed one chunk (strip or tile) at a time.
+//! The image is streamed one chunk (strip or tile) at a time. Compressions the `tiff` crate does
+//! not decode (ZSTD, LZMA, LERC, WebP, JPEG 2000) are decoded by GDAL where relief is built with
+//! the `gdal` feature, the header still read here. Lossy ones (JPEG, lossy WebP, LERC with a
+//! non-zero error bound, JPEG 2000) are refused unless allowed ([`super::OpenOptions`]).
 
 use std::fs::File;
 use std::io::BufReader;
@@ -36,6 +39,10 @@ const MODEL_TYPE_GEOGRAPHIC: u16 = 2;
 const RASTER_PIXEL_IS_POINT: u16 = 2;
 const USER_DEFINED: u16 = 32767;
 
+const COMPRESSION_NONE: u16 = 1;
+/// TIFF compressions the `tiff` crate decodes: none, LZW, deflate (both codes), PackBits, JPEG.
+const NATIVE_COMPRESSIONS: [u16; 6] = [COMPRESSION_NONE, 5, 8, 32946, 32773, 7];
+
 /// An open GeoTIFF.
 struct GeoTiff {
     path: std::path::PathBuf,
@@ -62,11 +69,28 @@ fn one_line(s: &str) -> String {
     s.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
-pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
+pub(super) fn open(path: &Path, allow_lossy: bool) -> Result<Box<dyn DemSource>> {
     let file = File::open(path).at(path)?;
     let mut decoder = Decoder::new(BufReader::new(file)).map_err(|e| tiff_error(path, e))?;
     let (width, height) = decoder.dimensions().map_err(|e| tiff_error(path, e))?;
     let (width, height) = check_dimensions(path, width.into(), height.into())?;
+    let compression = decoder
+        .find_tag(Tag::Compression)
+        .map_err(|e| tiff_error(path, e))?
+        .and_then(|v| v.into_u16().ok())
+        .unwrap_or(COMPRESSION_NONE);
+    let native = NATIVE_COMPRESSIONS.contains(&compression);
+    if !native && !cfg!(feature = "gdal") {
+        return Err(Error::Unsupported {
+            path: path.to_path_buf(),
+            what: format!("TIFF compression {}: {}", lossy::name(compression), super::NEEDS_GDAL),
+        });
+    }
+    if !allow_lossy {
+        if let Some(what) = lossy::reason(path, &mut decoder, compression)? {
+            return Err(Error::Lossy { path: path.to_path_buf(), what });
+        }
+    }
 
     let colour = decoder.colortype().map_err(|e| tiff_error(path, e))?;
     let bits = match colour {
@@ -131,6 +155,9 @@ pub(super) fn open(path: &Path) -> Result<Box<dyn DemSource>> {
     let (spacing, georef) = read_georef(path, &mut decoder, height)?;
 
     let info = DemInfo { format: DemFormat::GeoTiff, width, height, spacing, nodata, sample_type, georef };
+    if !native {
+        return super::gdal_pixels(path, info);
+    }
     Ok(Box::new(GeoTiff { path: path.to_path_buf(), decoder, info }))
 }
 
@@ -320,7 +347,7 @@ impl DemSource for GeoTiff {
 }
 
 /// An integer sample (as f64; exact up to 32 bits, rounded for 64-bit values) with nodata → NaN.
-fn int_sample(v: f64, nodata: Option<f64>) -> f64 {
+pub(super) fn int_sample(v: f64, nodata: Option<f64>) -> f64 {
     if Some(v) == nodata {
         f64::NAN
     } else {
@@ -331,7 +358,7 @@ fn int_sample(v: f64, nodata: Option<f64>) -> f64 {
 /// A float sample compared with nodata in f32, so that e.g. `-3.4028234663852886e+38` matches.
 /// Huge sentinels (|nodata| ≥ 1e38) also match within a relative 1e-5, since some writers print
 /// them with few digits (`-3.40282e+38` for `f32::MIN`).
-fn f32_sample(v: f32, nodata: Option<f32>) -> f64 {
+pub(super) fn f32_sample(v: f32, nodata: Option<f32>) -> f64 {
     let is_nodata = nodata.is_some_and(|nd| v == nd || (nd.abs() >= 1e38 && (v - nd).abs() <= nd.abs() * 1e-5));
     if is_nodata || !v.is_finite() {
         f64::NAN
@@ -380,5 +407,140 @@ impl ChunkGeometry {
             runs.emit(self.y0 + r as u32, self.x0, samples, sink)?;
         }
         Ok(())
+    }
+}
+
+/// Which TIFF compressions lose height information, read from the tags and the first chunk.
+mod lossy {
+    use std::fs::File;
+    use std::io::{BufReader, Read, Seek, SeekFrom};
+    use std::path::Path;
+
+    use tiff::decoder::Decoder;
+    use tiff::tags::Tag;
+
+    use super::tiff_error;
+    use crate::error::{IoContext, Result};
+
+    const OLD_JPEG: u16 = 6;
+    const JPEG: u16 = 7;
+    const JPEG2000: u16 = 34712;
+    const LERC: u16 = 34887;
+    const ZSTD: u16 = 50000;
+    const WEBP: u16 = 50001;
+    const JPEGXL: u16 = 50002;
+    const LZMA: u16 = 34925;
+    /// GDAL's LercParameters tag: [LERC version, extra compression (0 none, 1 deflate, 2 zstd)].
+    const LERC_PARAMETERS: u16 = 50674;
+
+    /// The compression's name, for messages.
+    pub(super) fn name(code: u16) -> String {
+        match code {
+            OLD_JPEG | JPEG => "JPEG".into(),
+            JPEG2000 => "JPEG 2000".into(),
+            LERC => "LERC".into(),
+            ZSTD => "ZSTD".into(),
+            WEBP => "WebP".into(),
+            JPEGXL => "JPEG XL".into(),
+            LZMA => "LZMA".into(),
+            c => format!("code {c}"),
+        }
+    }
+
+    /// Why a TIFF compressed with `code` is lossy, or `None` when it is not.
+    pub(super) fn reason(path: &Path, decoder: &mut Decoder<BufReader<File>>, code: u16) -> Result<Option<String>> {
+        Ok(match code {
+            OLD_JPEG | JPEG => Some("JPEG compression is lossy".into()),
+            JPEG2000 => Some("JPEG 2000 compression may be lossy (the TIFF does not say)".into()),
+            JPEGXL => Some("JPEG XL compression may be lossy (the TIFF does not say)".into()),
+            WEBP => {
+                // A lossless WebP bitstream is a RIFF whose first chunk is `VP8L`.
+                let head = first_chunk(path, decoder, 16)?;
+                (head.get(12..16) != Some(b"VP8L")).then(|| "lossy WebP compression".into())
+            }
+            LERC => lerc(path, decoder)?,
+            _ => None,
+        })
+    }
+
+    /// LERC is lossless when its blobs' maximum error is 0 (floats) or at most 0.5 (integers):
+    /// read from the first blob's header.
+    fn lerc(path: &Path, decoder: &mut Decoder<BufReader<File>>) -> Result<Option<String>> {
+        let extra = decoder
+            .find_tag(Tag::Unknown(LERC_PARAMETERS))
+            .map_err(|e| tiff_error(path, e))?
+            .and_then(|v| v.into_u32_vec().ok())
+            .and_then(|v| v.get(1).copied())
+            .unwrap_or(0);
+        let raw = first_chunk(path, decoder, 4096)?;
+        let blob = match extra {
+            0 => raw,
+            1 => {
+                let mut out = Vec::new();
+                // A truncated inflate still yields the header bytes it got to.
+                let _ = flate2::read::ZlibDecoder::new(raw.as_slice()).take(64).read_to_end(&mut out);
+                out
+            }
+            #[cfg(feature = "gdal")]
+            2 => {
+                let mut out = Vec::new();
+                if let Ok(d) = ruzstd::decoding::StreamingDecoder::new(raw.as_slice()) {
+                    let _ = d.take(64).read_to_end(&mut out);
+                }
+                out
+            }
+            _ => Vec::new(),
+        };
+        Ok(match lerc2_max_error(&blob) {
+            Some((max_error, integer)) if max_error == 0.0 || (integer && max_error <= 0.5) => None,
+            Some((max_error, _)) => Some(format!("LERC compression with a maximum error of {max_error} is lossy")),
+            None => Some("LERC compression may be lossy (its first blob's header is not one relief reads)".into()),
+        })
+    }
+
+    /// `(maxZError, integer data)` from a Lerc2 blob header (versions 2 to 4): the key `Lerc2 `,
+    /// the version, a checksum (version ≥ 3), the sizes (with the depth from version 4), the data
+    /// type, then maxZError as a little-endian f64.
+    pub(super) fn lerc2_max_error(blob: &[u8]) -> Option<(f64, bool)> {
+        let rest = blob.strip_prefix(b"Lerc2 ")?;
+        let int = |at: usize| rest.get(at..at + 4).map(|b| i32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+        let version = int(0)?;
+        let ints = match version {
+            2 => 5,
+            3 => 5,
+            4 => 6,
+            _ => return None,
+        };
+        let data_type_at = 4 + if version >= 3 { 4 } else { 0 } + 4 * ints;
+        let data_type = int(data_type_at)?;
+        let e = rest.get(data_type_at + 4..data_type_at + 12)?;
+        let max_error = f64::from_le_bytes(e.try_into().ok()?);
+        // Types 0..=5 are (u)int8/16/32; 6 and 7 are float and double.
+        Some((max_error, (0..=5).contains(&data_type)))
+    }
+
+    /// Up to `limit` raw (still compressed) bytes of the image's first strip or tile.
+    fn first_chunk(path: &Path, decoder: &mut Decoder<BufReader<File>>, limit: u64) -> Result<Vec<u8>> {
+        let first = |decoder: &mut Decoder<BufReader<File>>, tag: Tag| -> Result<Option<u64>> {
+            Ok(decoder
+                .find_tag(tag)
+                .map_err(|e| tiff_error(path, e))?
+                .and_then(|v| v.into_u64_vec().ok())
+                .and_then(|v| v.first().copied()))
+        };
+        let offset = match first(decoder, Tag::TileOffsets)? {
+            Some(o) => Some(o),
+            None => first(decoder, Tag::StripOffsets)?,
+        };
+        let count = match first(decoder, Tag::TileByteCounts)? {
+            Some(c) => Some(c),
+            None => first(decoder, Tag::StripByteCounts)?,
+        };
+        let (Some(offset), Some(count)) = (offset, count) else { return Ok(Vec::new()) };
+        let mut file = File::open(path).at(path)?;
+        file.seek(SeekFrom::Start(offset)).at(path)?;
+        let mut out = Vec::new();
+        file.take(count.min(limit)).read_to_end(&mut out).at(path)?;
+        Ok(out)
     }
 }

@@ -8,6 +8,8 @@
 
 mod asc;
 mod exr;
+#[cfg(feature = "gdal")]
+mod gdal;
 mod geotiff;
 mod hgt;
 mod mosaic;
@@ -25,7 +27,8 @@ use crate::error::{Error, IoContext, Result};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum DemFormat {
     /// GeoTIFF / TIFF: 8/16/32/64-bit integers, f16/f32/f64; strips or tiles; uncompressed,
-    /// deflate, LZW, PackBits (whatever the `tiff` crate decodes).
+    /// deflate, LZW, PackBits, JPEG (what the `tiff` crate decodes), and with the `gdal` feature
+    /// ZSTD, LZMA, LERC, WebP and JPEG 2000 through GDAL.
     GeoTiff,
     /// Grayscale PNG, 8 or 16 bits: the sample value is the height.
     Png,
@@ -39,10 +42,14 @@ pub enum DemFormat {
     Hgt,
     /// ESRI ASCII grid (`.asc`).
     Asc,
+    /// Any raster GDAL reads (VRT, NetCDF, JPEG 2000, …), band 1; needs relief built with the
+    /// `gdal` feature.
+    Gdal,
 }
 
 impl DemFormat {
-    pub const ALL: [DemFormat; 7] = [
+    /// Every format, in the order of the terrain header's `source_format` index.
+    pub const ALL: [DemFormat; 8] = [
         DemFormat::GeoTiff,
         DemFormat::Png,
         DemFormat::TerrainRgb,
@@ -50,6 +57,7 @@ impl DemFormat {
         DemFormat::Exr,
         DemFormat::Hgt,
         DemFormat::Asc,
+        DemFormat::Gdal,
     ];
 
     pub fn name(self) -> &'static str {
@@ -61,6 +69,7 @@ impl DemFormat {
             DemFormat::Exr => "exr",
             DemFormat::Hgt => "hgt",
             DemFormat::Asc => "asc",
+            DemFormat::Gdal => "gdal",
         }
     }
 
@@ -127,17 +136,60 @@ pub trait DemSource {
 /// A forced format whose reader cannot make sense of the content fails with an error naming the
 /// file (e.g. forcing `terrain-rgb` on a grayscale PNG).
 pub fn open(path: &Path, format: Option<DemFormat>) -> Result<Box<dyn DemSource>> {
-    let format = match format {
+    open_with(path, OpenOptions { format, allow_lossy: false })
+}
+
+/// How [`open_with`] opens a DEM.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct OpenOptions {
+    /// Forces a reader (otherwise detected, see [`detect`]).
+    pub format: Option<DemFormat>,
+    /// Accepts lossy-compressed sources (JPEG, lossy WebP, LERC with an error bound, JPEG 2000),
+    /// refused by default with [`Error::Lossy`]: their heights carry the codec's errors.
+    pub allow_lossy: bool,
+}
+
+/// [`open`] with options.
+pub fn open_with(path: &Path, opts: OpenOptions) -> Result<Box<dyn DemSource>> {
+    let format = match opts.format {
         Some(f) => f,
         None => detect(path)?,
     };
     match format {
-        DemFormat::GeoTiff => geotiff::open(path),
+        DemFormat::GeoTiff => geotiff::open(path, opts.allow_lossy),
+        DemFormat::Gdal => open_gdal(path, opts.allow_lossy),
         DemFormat::Png | DemFormat::TerrainRgb | DemFormat::Terrarium => png::open(path, format),
         DemFormat::Exr => exr::open(path),
         DemFormat::Hgt => hgt::open(path),
         DemFormat::Asc => asc::open(path),
     }
+}
+
+#[cfg(feature = "gdal")]
+fn open_gdal(path: &Path, allow_lossy: bool) -> Result<Box<dyn DemSource>> {
+    gdal::open(path, allow_lossy)
+}
+
+#[cfg(not(feature = "gdal"))]
+fn open_gdal(path: &Path, _allow_lossy: bool) -> Result<Box<dyn DemSource>> {
+    Err(Error::Unsupported { path: path.to_path_buf(), what: format!("raster for this build: {NEEDS_GDAL}") })
+}
+
+/// What to do about a raster only GDAL reads.
+pub(crate) const NEEDS_GDAL: &str =
+    "reading it needs GDAL: build relief with `--features gdal` (and Debian's libgdal-dev)";
+
+/// Pixels of a GeoTIFF the native decoder cannot decode (ZSTD, LERC, …), through GDAL, with the
+/// header the native reader made of it.
+#[cfg(feature = "gdal")]
+fn gdal_pixels(path: &Path, info: DemInfo) -> Result<Box<dyn DemSource>> {
+    gdal::with_info(path, info)
+}
+
+/// Not reached without the feature (`geotiff::open` refuses such files first).
+#[cfg(not(feature = "gdal"))]
+fn gdal_pixels(path: &Path, _info: DemInfo) -> Result<Box<dyn DemSource>> {
+    Err(Error::Unsupported { path: path.to_path_buf(), what: format!("TIFF compression: {NEEDS_GDAL}") })
 }
 
 /// Extensions of the files a directory given as a mosaic contributes (any case).
@@ -186,6 +238,9 @@ pub fn expand_inputs(inputs: &[std::path::PathBuf]) -> Result<Vec<std::path::Pat
 /// - extension `.hgt` (any case), or a size of exactly 2·1201² or 2·3601² bytes →
 ///   [`DemFormat::Hgt`].
 ///
+/// - extension `.vrt` or a `<VRTDataset` document → [`DemFormat::Gdal`]; with the `gdal`
+///   feature, anything else GDAL opens as a raster too.
+///
 /// Anything else is [`Error::UnknownFormat`], with the first bytes and the extension as a hint.
 pub fn detect(path: &Path) -> Result<DemFormat> {
     let mut file = File::open(path).at(path)?;
@@ -214,6 +269,14 @@ pub fn detect(path: &Path) -> Result<DemFormat> {
     }
     if extension.as_deref() == Some("hgt") || hgt::is_standard_size(size) {
         return Ok(DemFormat::Hgt);
+    }
+    // A GDAL virtual raster (XML), or anything else GDAL opens.
+    if extension.as_deref() == Some("vrt") || head.trim_ascii_start().starts_with(b"<VRTDataset") {
+        return Ok(DemFormat::Gdal);
+    }
+    #[cfg(feature = "gdal")]
+    if gdal::opens(path) {
+        return Ok(DemFormat::Gdal);
     }
 
     let hint = if head.is_empty() {

@@ -10,7 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{DemFormat, DemInfo, DemSource, Run, SourceSpacing, MAX_RUN};
+use super::{DemInfo, DemSource, Run, SourceSpacing, MAX_RUN};
 use crate::error::{Error, Result};
 use crate::georef::{CrsKind, Georef};
 
@@ -35,10 +35,10 @@ impl Placed {
     }
 }
 
-/// The mosaic of `paths` (at least one), each read as `format` or detected.
+/// The mosaic of `paths` (at least one), each opened with the same [`super::OpenOptions`].
 pub struct Mosaic {
     tiles: Vec<Placed>,
-    format: Option<DemFormat>,
+    open: super::OpenOptions,
     info: DemInfo,
 }
 
@@ -47,13 +47,13 @@ pub struct Mosaic {
 const SAME: f64 = 1e-6;
 
 impl Mosaic {
-    pub fn open(paths: &[PathBuf], format: Option<DemFormat>) -> Result<Mosaic> {
+    pub fn open(paths: &[PathBuf], open: super::OpenOptions) -> Result<Mosaic> {
         let Some(first_path) = paths.first() else {
             return Err(Error::InvalidArgument("a mosaic needs at least one tile".into()));
         };
         let mut infos = Vec::with_capacity(paths.len());
         for p in paths {
-            let info = super::open(p, format)?.info().clone();
+            let info = super::open_with(p, open)?.info().clone();
             let Some(g) = info.georef else {
                 return Err(Error::bad_dem(p, "not georeferenced, so it cannot be placed in a mosaic"));
             };
@@ -142,7 +142,7 @@ impl Mosaic {
             sample_type: format!("{} (mosaic of {} tiles)", first.sample_type, tiles.len()),
             georef: Some(georef),
         };
-        Ok(Mosaic { tiles, format, info })
+        Ok(Mosaic { tiles, open, info })
     }
 
     /// Columns of row `row` (north-counted) that no tile before `k` covers, within `cols`, as
@@ -192,7 +192,7 @@ impl DemSource for Mosaic {
         let mut spans = Vec::new();
         for k in 0..self.tiles.len() {
             let t = self.tiles[k].clone();
-            let mut source = super::open(&t.path, self.format)?;
+            let mut source = super::open_with(&t.path, self.open)?;
             let info = source.info();
             if (info.width, info.height) != (t.width, t.height) {
                 return Err(Error::bad_dem(&t.path, "changed while the mosaic was read"));
@@ -239,7 +239,7 @@ mod tests {
             .map(|&(x0, y0, width, height)| Placed { path: PathBuf::from("t"), x0, y0, width, height })
             .collect();
         let info = DemInfo {
-            format: DemFormat::GeoTiff,
+            format: crate::dem::DemFormat::GeoTiff,
             width: 10,
             height: 10,
             spacing: None,
@@ -247,7 +247,7 @@ mod tests {
             sample_type: String::new(),
             georef: None,
         };
-        Mosaic { tiles, format: None, info }
+        Mosaic { tiles, open: Default::default(), info }
     }
 
     /// Every post is owned by exactly one tile or by the gaps.

@@ -47,6 +47,8 @@ pub struct ConvertOptions {
     pub z_scale: f64,
     pub z_offset: f64,
     pub format: Option<DemFormat>,
+    /// Accept lossy-compressed DEMs (see [`dem::OpenOptions::allow_lossy`]).
+    pub allow_lossy: bool,
     /// Where the scratch grid lives (default: beside the output).
     pub scratch_dir: Option<PathBuf>,
     pub progress: Progress,
@@ -61,9 +63,17 @@ impl ConvertOptions {
             z_scale: 1.0,
             z_offset: 0.0,
             format: None,
+            allow_lossy: false,
             scratch_dir: None,
             progress: Progress::hidden(),
         }
+    }
+}
+
+impl ConvertOptions {
+    /// How the input DEMs are opened.
+    pub fn open_options(&self) -> dem::OpenOptions {
+        dem::OpenOptions { format: self.format, allow_lossy: self.allow_lossy }
     }
 }
 
@@ -235,7 +245,7 @@ pub fn convert_many(inputs: &[PathBuf], output: &Path, opts: &ConvertOptions) ->
         return convert(label, output, opts);
     }
     let tiles = dem::expand_inputs(inputs)?;
-    let mosaic = dem::Mosaic::open(&tiles, opts.format)?;
+    let mosaic = dem::Mosaic::open(&tiles, opts.open_options())?;
     convert_source(label, Some(Box::new(mosaic)), output, opts)
 }
 
@@ -329,7 +339,7 @@ fn convert_source(
 
     let mut source = match source {
         Some(s) => s,
-        None => dem::open(input, opts.format)?,
+        None => dem::open_with(input, opts.open_options())?,
     };
     let info = source.info().clone();
     let (width, height) = (info.width, info.height);
