@@ -472,7 +472,8 @@ mod lossy {
             .and_then(|v| v.into_u32_vec().ok())
             .and_then(|v| v.get(1).copied())
             .unwrap_or(0);
-        let raw = first_chunk(path, decoder, 4096)?;
+        // A ZSTD block (at most 128 KiB) must be whole to be decoded: 1 MiB holds the first.
+        let raw = first_chunk(path, decoder, 1 << 20)?;
         let blob = match extra {
             0 => raw,
             1 => {
