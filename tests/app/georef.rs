@@ -29,7 +29,7 @@ fn info(file: &Path) -> Value {
 }
 
 fn convert(src: &Path, out: &Path) {
-    let o = relief().args(["convert", "--quiet"]).arg(src).arg(out).output().unwrap();
+    let o = convert_with(src, out, &[]);
     assert!(o.status.success(), "{}", stderr_of(&o));
 }
 

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use gdal::raster::{GdalDataType, GdalType, RasterBand};
 use gdal::{Dataset, Metadata};
 
-use super::geotiff::{f32_sample, int_sample};
+use super::geotiff::{f32_sample, f64_sample, int_sample, one_line};
 use super::{check_dimensions, DemFormat, DemInfo, DemSource, Run, RunBuffer, SourceSpacing};
 use crate::error::{Error, Result};
 use crate::georef::{unit, CrsKind, Georef};
@@ -27,9 +27,16 @@ struct GdalSource {
     info: DemInfo,
 }
 
-/// GDAL's messages may span lines; ours do not.
+/// GDAL's error for `path`, in one line: a call that returned nothing gives GDAL's own message
+/// (its last error), or says GDAL cannot read the file where there is none.
 fn gdal_error(path: &Path, e: gdal::errors::GdalError) -> Error {
-    Error::bad_dem(path, format!("GDAL: {}", e.to_string().split_whitespace().collect::<Vec<_>>().join(" ")))
+    match e {
+        gdal::errors::GdalError::NullPointer { msg, .. } if msg.trim().is_empty() => {
+            Error::bad_dem(path, "GDAL cannot read it as a raster")
+        }
+        gdal::errors::GdalError::NullPointer { msg, .. } => Error::bad_dem(path, format!("GDAL: {}", one_line(&msg))),
+        e => Error::bad_dem(path, format!("GDAL: {}", one_line(&e.to_string()))),
+    }
 }
 
 /// GDAL prints its errors and warnings on stderr by default; relief's errors are one line naming
@@ -41,15 +48,7 @@ fn quiet_gdal() {
 
 fn open_dataset(path: &Path) -> Result<Dataset> {
     quiet_gdal();
-    Dataset::open(path).map_err(|e| match e {
-        gdal::errors::GdalError::NullPointer { msg, .. } if msg.trim().is_empty() => {
-            Error::bad_dem(path, "GDAL cannot read it as a raster")
-        }
-        gdal::errors::GdalError::NullPointer { msg, .. } => {
-            Error::bad_dem(path, format!("GDAL: {}", msg.split_whitespace().collect::<Vec<_>>().join(" ")))
-        }
-        e => gdal_error(path, e),
-    })
+    Dataset::open(path).map_err(|e| gdal_error(path, e))
 }
 
 /// The pixels of `path` through GDAL, with the header `info` the native reader made of it.
@@ -164,14 +163,8 @@ fn georeference(dataset: &Dataset, t: [f64; 6], height: u32) -> (Option<SourceSp
         step: [sx, sy],
     };
     let georef = georef.is_valid().then_some(georef);
-    let spacing = if kind == CrsKind::Geographic {
-        let centre_lat_deg = t[3] - sy * f64::from(height) / 2.0;
-        Some(SourceSpacing::Degrees { x: sx, y: sy, centre_lat_deg })
-    } else {
-        let metres = unit::metres(unit).unwrap_or(1.0);
-        Some(SourceSpacing::Metres { x: sx * metres, y: sy * metres })
-    };
-    (spacing, georef)
+    let centre_lat_deg = t[3] - sy * f64::from(height) / 2.0;
+    (Some(SourceSpacing::from_step(kind, unit, [sx, sy], centre_lat_deg)), georef)
 }
 
 /// The EPSG unit code of a linear unit given in metres (0 when it is none of the usual ones).
@@ -233,7 +226,7 @@ impl DemSource for GdalSource {
             GdalDataType::Int32 => self.stream::<i32>(&band, |s| int_sample(s.into(), nodata), sink),
             GdalDataType::Float32 => self.stream::<f32>(&band, |s| f32_sample(s, nd32), sink),
             // 64-bit integers and anything wider are read as f64, as the native reader does.
-            _ => self.stream::<f64>(&band, |s| if Some(s) == nodata || !s.is_finite() { f64::NAN } else { s }, sink),
+            _ => self.stream::<f64>(&band, |s| f64_sample(s, nodata), sink),
         }
     }
 }

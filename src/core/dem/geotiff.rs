@@ -65,7 +65,7 @@ fn tiff_error(path: &Path, e: TiffError) -> Error {
 }
 
 /// Error texts from dependencies may span lines; ours must not.
-fn one_line(s: &str) -> String {
+pub(super) fn one_line(s: &str) -> String {
     s.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
@@ -80,11 +80,9 @@ pub(super) fn open(path: &Path, allow_lossy: bool) -> Result<Box<dyn DemSource>>
         .and_then(|v| v.into_u16().ok())
         .unwrap_or(COMPRESSION_NONE);
     let native = NATIVE_COMPRESSIONS.contains(&compression);
-    if !native && !cfg!(feature = "gdal") {
-        return Err(Error::Unsupported {
-            path: path.to_path_buf(),
-            what: format!("TIFF compression {}: {}", lossy::name(compression), super::NEEDS_GDAL),
-        });
+    #[cfg(not(feature = "gdal"))]
+    if !native {
+        return Err(super::needs_gdal(path, &format!("TIFF compression {}", lossy::name(compression))));
     }
     if !allow_lossy {
         if let Some(what) = lossy::reason(path, &mut decoder, compression)? {
@@ -155,8 +153,10 @@ pub(super) fn open(path: &Path, allow_lossy: bool) -> Result<Box<dyn DemSource>>
     let (spacing, georef) = read_georef(path, &mut decoder, height)?;
 
     let info = DemInfo { format: DemFormat::GeoTiff, width, height, spacing, nodata, sample_type, georef };
+    // Pixels GDAL decodes, under the header read here (so copies give the same terrain file).
+    #[cfg(feature = "gdal")]
     if !native {
-        return super::gdal_pixels(path, info);
+        return super::gdal::with_info(path, info);
     }
     Ok(Box::new(GeoTiff { path: path.to_path_buf(), decoder, info }))
 }
@@ -209,7 +209,6 @@ fn read_georef(
     if !(sx.is_finite() && sy.is_finite() && sx != 0.0 && sy != 0.0) {
         return Ok((None, None));
     }
-    let (sx_abs, sy_abs) = (sx.abs(), sy.abs());
     // Posts are pixel centres for PixelIsArea.
     let centre = if geo_key(&keys, GT_RASTER_TYPE) == Some(RASTER_PIXEL_IS_POINT) { 0.0 } else { 0.5 };
     let code = |key: u16| geo_key(&keys, key).filter(|&c| c != 0 && c != USER_DEFINED).map(u32::from);
@@ -248,16 +247,9 @@ fn read_georef(
     // Only a north-up, east-right grid is placed (as relief reads it, row 0 north).
     let georef = georef.is_valid().then_some(georef);
 
-    let spacing = if kind == CrsKind::Geographic {
-        // The centre row's latitude (the tie point's row, if any, as the file gives it).
-        let centre_lat_deg = y0 - sy * f64::from(height) / 2.0;
-        let centre_lat_deg = if centre_lat_deg.is_finite() { centre_lat_deg } else { 0.0 };
-        Some(SourceSpacing::Degrees { x: sx_abs, y: sy_abs, centre_lat_deg })
-    } else {
-        let metres = unit::metres(unit).unwrap_or(1.0);
-        Some(SourceSpacing::Metres { x: sx_abs * metres, y: sy_abs * metres })
-    };
-    Ok((spacing, georef))
+    // The centre row's latitude (the tie point's row, if any, as the file gives it).
+    let centre_lat_deg = y0 - sy * f64::from(height) / 2.0;
+    Ok((Some(SourceSpacing::from_step(kind, unit, [sx, sy], centre_lat_deg)), georef))
 }
 
 /// Looks up a SHORT-valued key stored inline in a GeoKeyDirectory (header of 4 shorts, then
@@ -328,18 +320,7 @@ impl DemSource for GeoTiff {
                     let nd = nodata.map(|n| n as f32);
                     geometry.emit(v, |s| f32_sample(s, nd), &mut runs, sink)?
                 }
-                DecodingResult::F64(v) => geometry.emit(
-                    v,
-                    |s| {
-                        if Some(s) == nodata || !s.is_finite() {
-                            f64::NAN
-                        } else {
-                            s
-                        }
-                    },
-                    &mut runs,
-                    sink,
-                )?,
+                DecodingResult::F64(v) => geometry.emit(v, |s| f64_sample(s, nodata), &mut runs, sink)?,
             }
         }
         Ok(())
@@ -349,6 +330,15 @@ impl DemSource for GeoTiff {
 /// An integer sample (as f64; exact up to 32 bits, rounded for 64-bit values) with nodata → NaN.
 pub(super) fn int_sample(v: f64, nodata: Option<f64>) -> f64 {
     if Some(v) == nodata {
+        f64::NAN
+    } else {
+        v
+    }
+}
+
+/// An f64 sample with nodata and non-finite values → NaN.
+pub(super) fn f64_sample(v: f64, nodata: Option<f64>) -> f64 {
+    if Some(v) == nodata || !v.is_finite() {
         f64::NAN
     } else {
         v
@@ -426,14 +416,17 @@ mod lossy {
     const JPEG: u16 = 7;
     const JPEG2000: u16 = 34712;
     const LERC: u16 = 34887;
+    #[cfg(not(feature = "gdal"))]
     const ZSTD: u16 = 50000;
     const WEBP: u16 = 50001;
     const JPEGXL: u16 = 50002;
+    #[cfg(not(feature = "gdal"))]
     const LZMA: u16 = 34925;
     /// GDAL's LercParameters tag: [LERC version, extra compression (0 none, 1 deflate, 2 zstd)].
     const LERC_PARAMETERS: u16 = 50674;
 
     /// The compression's name, for messages.
+    #[cfg(not(feature = "gdal"))]
     pub(super) fn name(code: u16) -> String {
         match code {
             OLD_JPEG | JPEG => "JPEG".into(),

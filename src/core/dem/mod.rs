@@ -94,6 +94,22 @@ pub enum SourceSpacing {
     Degrees { x: f64, y: f64, centre_lat_deg: f64 },
 }
 
+impl SourceSpacing {
+    /// The spacing of posts `step` CRS units apart: degrees in a geographic CRS (converted to
+    /// metres at `centre_lat_deg`, taken as 0 when not finite), else metres by the CRS's `unit`
+    /// (an EPSG unit code; metres when not stated).
+    pub(crate) fn from_step(kind: crate::georef::CrsKind, unit: u16, step: [f64; 2], centre_lat_deg: f64) -> Self {
+        let [x, y] = step.map(f64::abs);
+        if kind == crate::georef::CrsKind::Geographic {
+            let centre_lat_deg = if centre_lat_deg.is_finite() { centre_lat_deg } else { 0.0 };
+            SourceSpacing::Degrees { x, y, centre_lat_deg }
+        } else {
+            let metres = crate::georef::unit::metres(unit).unwrap_or(1.0);
+            SourceSpacing::Metres { x: x * metres, y: y * metres }
+        }
+    }
+}
+
 /// What a reader learned from the file's header.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DemInfo {
@@ -172,24 +188,16 @@ fn open_gdal(path: &Path, allow_lossy: bool) -> Result<Box<dyn DemSource>> {
 
 #[cfg(not(feature = "gdal"))]
 fn open_gdal(path: &Path, _allow_lossy: bool) -> Result<Box<dyn DemSource>> {
-    Err(Error::Unsupported { path: path.to_path_buf(), what: format!("raster for this build: {NEEDS_GDAL}") })
+    Err(needs_gdal(path, "raster for this build"))
 }
 
-/// What to do about a raster only GDAL reads.
-pub(crate) const NEEDS_GDAL: &str =
-    "reading it needs GDAL: build relief with `--features gdal` (and Debian's libgdal-dev)";
-
-/// Pixels of a GeoTIFF the native decoder cannot decode (ZSTD, LERC, …), through GDAL, with the
-/// header the native reader made of it.
-#[cfg(feature = "gdal")]
-fn gdal_pixels(path: &Path, info: DemInfo) -> Result<Box<dyn DemSource>> {
-    gdal::with_info(path, info)
-}
-
-/// Not reached without the feature (`geotiff::open` refuses such files first).
+/// `what` of `path`, which only GDAL reads, refused by a build without it: what to do about it.
 #[cfg(not(feature = "gdal"))]
-fn gdal_pixels(path: &Path, _info: DemInfo) -> Result<Box<dyn DemSource>> {
-    Err(Error::Unsupported { path: path.to_path_buf(), what: format!("TIFF compression: {NEEDS_GDAL}") })
+fn needs_gdal(path: &Path, what: &str) -> Error {
+    Error::Unsupported {
+        path: path.to_path_buf(),
+        what: format!("{what}: reading it needs GDAL: build relief with `--features gdal` (and Debian's libgdal-dev)"),
+    }
 }
 
 /// Extensions of the files a directory given as a mosaic contributes (any case).
