@@ -36,7 +36,10 @@ fn bench(c: &mut Criterion) {
     g.bench_function(BenchmarkId::new("bounds", grid.size()), |b| {
         let z: Vec<f32> = base.iter().map(|r| r.z).collect();
         let mut bounds = vec![[0.0f32; 2]; z.len()];
-        b.iter(|| compute_bounds(grid, [10.0, 10.0], &z, &mut bounds, &|_| {}, &|| Ok(())).unwrap())
+        b.iter(|| {
+            compute_bounds(grid, [10.0, 10.0], &z, [grid.size(), grid.size()], &mut bounds, &|_| {}, &|| Ok(()))
+                .unwrap()
+        })
     });
     let side = grid.size() as usize;
     g.bench_function(BenchmarkId::new("fill_10pct_void", grid.size()), |b| {

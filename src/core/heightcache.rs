@@ -204,9 +204,11 @@ pub fn read_heights(
     impl<I: Iterator<Item = (u32, u32)>, P: FnMut(f32)> LayoutVisitor for Read<'_, I, P> {
         type Output = Result<()>;
         fn visit<L: Layout>(mut self, layout: &L) -> Result<()> {
+            let h = self.terrain.header();
             match self.terrain.mapped_records() {
                 Some(records) => {
                     for (x, y) in self.posts {
+                        let (x, y) = h.data_post(x, y);
                         (self.put)(records.record(layout.index(x, y)).z);
                     }
                     Ok(())
@@ -214,6 +216,7 @@ pub fn read_heights(
                 None => {
                     let records = PagerRecords::new(self.terrain);
                     for (x, y) in self.posts {
+                        let (x, y) = h.data_post(x, y);
                         (self.put)(records.record(layout.index(x, y)).z);
                     }
                     records.take_error()

@@ -78,6 +78,7 @@ impl HeightTiling {
 /// border so filtering-free reads never see garbage).
 pub fn fill_tile(records: &[Record], terrain: &TerrainFile, tiling: &HeightTiling, layer: u32, out: &mut [f32]) {
     struct Fill<'a> {
+        terrain: &'a TerrainFile,
         records: &'a [Record],
         tiling: &'a HeightTiling,
         layer: u32,
@@ -91,16 +92,18 @@ pub fn fill_tile(records: &[Record], terrain: &TerrainFile, tiling: &HeightTilin
             let y0 = (self.layer / self.tiling.tiles_per_row) * t;
             let last = self.tiling.posts - 1;
             let records = self.records;
+            let h = self.terrain.header();
             self.out.par_chunks_mut(t as usize).enumerate().for_each(|(row, dst)| {
                 let y = (y0 + row as u32).min(last);
-                for (col, h) in dst.iter_mut().enumerate() {
+                for (col, out) in dst.iter_mut().enumerate() {
                     let x = (x0 + col as u32).min(last);
-                    *h = records[layout.index(x, y) as usize].z;
+                    let (x, y) = h.data_post(x, y);
+                    *out = records[layout.index(x, y) as usize].z;
                 }
             });
         }
     }
-    terrain.layout().visit(Fill { records, tiling, layer, out });
+    terrain.layout().visit(Fill { terrain, records, tiling, layer, out });
 }
 
 /// An `R32Float` texture array of `layers` square layers of `side` texels, written with

@@ -724,7 +724,7 @@ pub fn near_plane_m(terrain: &TerrainFile, eye_in_world: DVec3) -> f64 {
         let (x0, y0) = ((ex.floor() as u32).min(last - 1), (ey.floor() as u32).min(last - 1));
         let ground = [(0, 0), (1, 0), (0, 1), (1, 1)]
             .iter()
-            .map(|&(dx, dy)| terrain.record_at(x0 + dx, y0 + dy).map_or(h.z_max, |r| r.z as f64))
+            .map(|&(dx, dy)| terrain.height_at(x0 + dx, y0 + dy).map_or(h.z_max, |z| z as f64))
             .fold(f64::MIN, f64::max);
         (eye_in_world.z - ground).max(above_all)
     } else {

@@ -305,7 +305,7 @@ pub fn ground_max_m(terrain: &TerrainFile, x_m: f64, y_m: f64) -> Result<Option<
     let Some(posts) = posts_around(terrain, x_m, y_m) else { return Ok(None) };
     let mut best = f64::NEG_INFINITY;
     for (x, y, _) in posts {
-        best = best.max(f64::from(terrain.record_at(x, y)?.z));
+        best = best.max(f64::from(terrain.height_at(x, y)?));
     }
     Ok(Some(best))
 }
@@ -316,7 +316,7 @@ pub fn ground_bilinear_m(terrain: &TerrainFile, x_m: f64, y_m: f64) -> Result<Op
     let Some(posts) = posts_around(terrain, x_m, y_m) else { return Ok(None) };
     let mut sum = 0.0;
     for (x, y, w) in posts {
-        sum += w * f64::from(terrain.record_at(x, y)?.z);
+        sum += w * f64::from(terrain.height_at(x, y)?);
     }
     Ok(Some(sum))
 }
@@ -361,7 +361,7 @@ impl<'a> DiskMax<'a> {
                 let x = ix * kx;
                 let dx = x as f64 * sx - p.x;
                 if dx * dx + dy * dy <= r * r {
-                    best = best.max(f64::from(self.terrain.record_at(x as u32, y as u32)?.z));
+                    best = best.max(f64::from(self.terrain.height_at(x as u32, y as u32)?));
                 }
             }
         }

@@ -1,10 +1,11 @@
 //! The `.relief` terrain file: a 256-byte little-endian header, padded to one 4 KiB page, then the
-//! vertex records in layout order.
+//! vertex records in layout order, of which only the pages holding stored records are kept
+//! (version 3: see "Stored pages" below).
 //!
 //! ```text
 //! offset size  field
 //!      0    8  magic "\x89RELIEF\n"
-//!      8    4  version (2; version 1, without the CRS fields at 184..232, is still read)
+//!      8    4  version (3; versions 1 (no CRS fields at 184..232) and 2 (every page stored) are still read)
 //!     12    4  header bytes (256)
 //!     16    4  layout code (0 row-major, 1 tiled, 2 interleaved, 3 embedded, 4 hz)
 //!     20    4  layout parameter (tile side for tiled, else 0)
@@ -13,14 +14,14 @@
 //!     32    4  n (grid side 2^n + 1)
 //!     36    4  levels (2n)
 //!     40    4  grid side (2^n + 1)
-//!     44    4  flags (bit 0: spacing assumed, bit 1: source grid was geographic)
+//!     44    4  flags (bit 0: spacing assumed, bit 1: source grid was geographic, bit 2: stored pages)
 //!     48   16  valid window x0, y0, x1, y1 (u32 each, grid posts, half-open)
 //!     64    4  source DEM format code
-//!     68    4  reserved (0)
+//!     68    4  pages of the page map (flag bit 2; else 0)                    [version 3]
 //!     72    8  records (index-space size)
 //!     80    8  vertices ((2^n + 1)²)
 //!     88    8  payload offset (4096)
-//!     96    8  payload bytes (records × record bytes)
+//!     96    8  payload bytes (records × record bytes, as read: pages left out count)
 //!    104   16  spacing x, y in metres (f64)
 //!    120   16  z scale, z offset (f64): the transform applied to the source values
 //!    136   16  z min, z max over the valid window, metres (f64)
@@ -38,7 +39,19 @@
 //!    240    8  payload checksum: XXH3-64 over the XXH3-64s of 786,432-byte payload blocks
 //!    248    8  header checksum: XXH3-64 of bytes 0..248
 //! ```
-//! Records in unused slots of the index space are all zero bytes. Where the DEM had nodata, a
+//! Records in unused slots of the index space are all zero bytes.
+//!
+//! **Stored pages** (flag bit 2, version 3). Only the vertices of [`Stored`] over the valid window
+//! (the data and their DAG ancestors; ARCHITECTURE.md, "Padding that is never stored") have
+//! records; the others (null vertices) are zero, and a 4 KiB page of the payload that holds no
+//! stored record is left out of the file. The offsets above, and everything read through the
+//! pager, are those of the file *as read*, with every page in place; on disk the header page is
+//! followed by the page map (its page count at 68): an XXH3-64 of the bytes after it up to the end
+//! of the runs, the number of runs, and per run the first payload page and the page count (u64
+//! each), zero-padded to a page; then the stored payload pages in order, whole pages; then the void
+//! mask. A sparse file must have a valid window starting at post (0, 0).
+//!
+//! Where the DEM had nodata, a
 //! void mask follows the payload at its own page: an XXH3-64 of the bits, then one bit per post of
 //! the valid window, row by row from the south, least significant bit first ([`VoidMask`]). The header checksum is verified
 //! on every open (it is cheap); the payload checksum only on request ([`TerrainFile::verify_payload`]).
@@ -52,10 +65,11 @@ use super::{read_header, FileKind, Format, HeaderBytes, Problem};
 use crate::error::{Error, Result};
 use crate::georef::{CrsKind, Georef};
 use crate::layout::hierarchy::{Grid, MAX_N};
-use crate::layout::{AnyLayout, Layout, LayoutKind};
+use crate::layout::{AnyLayout, Layout, LayoutKind, Stored};
+use crate::pager::sparse::{PageMap, SparseFile, PAGE_BYTES};
 use crate::pager::{source, Access, FixedBlocks, Pager};
 
-pub const VERSION: u32 = 2;
+pub const VERSION: u32 = 3;
 /// The oldest version this build reads (version 1 has no CRS: its bytes 184..232 are zero).
 pub const OLDEST_VERSION: u32 = 1;
 pub const HEADER_BYTES: usize = super::HEADER_BYTES;
@@ -77,6 +91,8 @@ pub const RECORD_BYTES: u32 = std::mem::size_of::<Record>() as u32;
 
 pub const FLAG_SPACING_ASSUMED: u32 = 1;
 pub const FLAG_GEOGRAPHIC: u32 = 2;
+/// Only the [`Stored`] vertices have records, and pages without one are left out (version 3).
+pub const FLAG_STORED_PAGES: u32 = 4;
 
 /// The decoded header.
 #[derive(Clone, Debug, PartialEq)]
@@ -108,6 +124,8 @@ pub struct Header {
     pub georef: Option<Georef>,
     /// Where the void mask starts (0: the file has none; every post was data).
     pub void_mask_offset: u64,
+    /// Pages of the page map after the header page (flag [`FLAG_STORED_PAGES`]; else 0).
+    pub page_map_pages: u32,
     pub payload_checksum: u64,
 }
 
@@ -138,7 +156,33 @@ impl Header {
         (self.payload_offset + self.payload_bytes).next_multiple_of(4096)
     }
 
-    /// The file's exact length.
+    /// Whether only the [`Stored`] vertices have records (and pages without one are left out).
+    pub fn stores_pages(&self) -> bool {
+        self.flags & FLAG_STORED_PAGES != 0
+    }
+
+    /// The vertices that have records: the data and their ancestors, or every vertex in files
+    /// without [`FLAG_STORED_PAGES`].
+    pub fn stored(&self) -> Stored {
+        if self.stores_pages() {
+            Stored::new(self.grid(), self.valid_window[2], self.valid_window[3])
+        } else {
+            Stored::all(self.grid())
+        }
+    }
+
+    /// The post whose height `(x, y)` has: itself, or in a file with stored pages its nearest post
+    /// of the valid window (the padding's heights, which are not stored, replicate the edge).
+    #[inline]
+    pub fn data_post(&self, x: u32, y: u32) -> (u32, u32) {
+        if self.stores_pages() {
+            (x.min(self.valid_window[2] - 1), y.min(self.valid_window[3] - 1))
+        } else {
+            (x, y)
+        }
+    }
+
+    /// The file's exact length as read (every page in place; see [`Self::stores_pages`]).
     pub fn file_len(&self) -> u64 {
         match self.void_mask_offset {
             0 => self.payload_offset + self.payload_bytes,
@@ -194,6 +238,7 @@ impl Format for Header {
             h.put_f64(216, g.step[0]);
             h.put_f64(224, g.step[1]);
         }
+        h.put_u32(68, self.page_map_pages);
         h.put_u64(232, self.void_mask_offset);
         h.put_u64(240, self.payload_checksum);
     }
@@ -234,6 +279,7 @@ impl Format for Header {
             source_spacing_deg: [b.f64(168), b.f64(176)],
             georef: decode_georef(b).map_err(bad)?,
             void_mask_offset: b.u64(232),
+            page_map_pages: b.u32(68),
             payload_checksum: b.u64(240),
         };
         if h.record_format != RECORD_FORMAT_F32 || h.record_bytes != RECORD_BYTES {
@@ -276,6 +322,23 @@ impl Format for Header {
                 h.void_mask_offset,
                 h.void_mask_start()
             )));
+        }
+        if h.stores_pages() {
+            if h.version < 3 || h.page_map_pages == 0 || x0 != 0 || y0 != 0 {
+                return Err(bad(format!(
+                    "stored pages (flag 4) need version 3, a page map and a window from (0, 0): version {}, {} map pages, window {:?}",
+                    h.version, h.page_map_pages, h.valid_window
+                )));
+            }
+            // The exact length is checked against the page map when the file is opened.
+            let least = PAYLOAD_OFFSET * (1 + h.page_map_pages as u64);
+            if file_len < least {
+                return Err(Problem::Truncated { expected: least, found: file_len });
+            }
+            return Ok(h);
+        }
+        if h.page_map_pages != 0 {
+            return Err(bad(format!("{} page map pages without stored pages (flag 4)", h.page_map_pages)));
         }
         let expected = h.file_len();
         if file_len != expected {
@@ -361,6 +424,12 @@ impl TerrainFile {
 
     fn open_source(path: &Path, source: Arc<dyn source::Source>, access: Access) -> Result<TerrainFile> {
         let header: Header = read_header(&*source)?;
+        let source = if header.stores_pages() {
+            let map = read_page_map(path, &*source, &header)?;
+            Arc::new(SparseFile::new(source, map)?) as Arc<dyn source::Source>
+        } else {
+            source
+        };
         let table = FixedBlocks {
             first: header.payload_offset,
             block_bytes: RECORDS_PER_BLOCK * RECORD_BYTES as u64,
@@ -386,6 +455,19 @@ impl TerrainFile {
 
     pub fn grid(&self) -> Grid {
         self.header.grid()
+    }
+
+    /// Bytes the file takes (pages left out do not count; see [`Header::stores_pages`]).
+    pub fn stored_bytes(&self) -> u64 {
+        match self.pager.source().page_map() {
+            Some(m) => PAYLOAD_OFFSET * (1 + self.header.page_map_pages as u64) + stored_tail(m, &self.header),
+            None => self.header.file_len(),
+        }
+    }
+
+    /// Where payload pages are left out, which are stored where (pages of the file as read).
+    pub fn page_map(&self) -> Option<&PageMap> {
+        self.pager.source().page_map()
     }
 
     /// The remote file the records come from, where the terrain is remote.
@@ -441,9 +523,15 @@ impl TerrainFile {
         Ok(bytemuck::pod_read_unaligned(&block[at..at + RECORD_BYTES as usize]))
     }
 
-    /// The record of grid position `(x, y)`.
+    /// The record of grid position `(x, y)` (all zero for a null vertex, see [`Stored`]).
     pub fn record_at(&self, x: u32, y: u32) -> Result<Record> {
         self.record(self.layout.index(x, y))
+    }
+
+    /// The height of grid post `(x, y)`, padding included ([`Header::data_post`]).
+    pub fn height_at(&self, x: u32, y: u32) -> Result<f32> {
+        let (x, y) = self.header.data_post(x, y);
+        Ok(self.record_at(x, y)?.z)
     }
 
     /// Calls `f` with every record slot in layout order, in chunks: `(index of the chunk's first
@@ -527,6 +615,79 @@ impl TerrainFile {
         }
         Ok(())
     }
+}
+
+/// The physical bytes after the page map: the stored pages and the void mask.
+fn stored_tail(map: &PageMap, h: &Header) -> u64 {
+    // Every run but the header page's is stored whole, except that the void mask ends the file.
+    let mask = if h.void_mask_offset == 0 { 0 } else { 8 + h.void_mask_bits_bytes() };
+    let mask_pages = mask.div_ceil(PAGE_BYTES);
+    (map.stored_pages() - 1 - mask_pages) * PAGE_BYTES + mask
+}
+
+/// Reads and checks the page map of a file with stored pages, and returns the map of the whole
+/// file as read: its header page, the stored payload runs and the void mask.
+fn read_page_map(path: &Path, source: &dyn source::Source, h: &Header) -> Result<PageMap> {
+    let corrupt =
+        |what: String| super::file_error(path, FileKind::Terrain, Problem::Corrupt(format!("page map: {what}")));
+    let map_pages = h.page_map_pages as u64;
+    let mut bytes = vec![0u8; (map_pages * PAGE_BYTES) as usize];
+    source.read_at(PAGE_BYTES, &mut bytes)?;
+    let word = |k: usize| u64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+    let count = word(1);
+    let max_runs = (bytes.len() as u64 - 16) / 16;
+    if count > max_runs {
+        return Err(corrupt(format!("{count} runs do not fit its {map_pages} pages")));
+    }
+    let end = 16 + 16 * count as usize;
+    let computed = xxhash_rust::xxh3::xxh3_64(&bytes[8..end]);
+    if computed != word(0) {
+        return Err(super::file_error(
+            path,
+            FileKind::Terrain,
+            Problem::Checksum { which: "page map", stored: word(0), computed },
+        ));
+    }
+    let payload_pages = h.payload_bytes.div_ceil(PAGE_BYTES);
+    let mut runs = vec![(0, 0, 1)];
+    let mut physical = 1 + map_pages;
+    let mut next = 0u64;
+    for k in 0..count as usize {
+        let (first, pages) = (word(2 + 2 * k), word(3 + 2 * k));
+        if pages == 0 || first < next || first.checked_add(pages).is_none_or(|e| e > payload_pages) {
+            return Err(corrupt(format!(
+                "run {k} (pages {first} + {pages}) is empty, out of order or past the payload's {payload_pages} pages"
+            )));
+        }
+        runs.push((1 + first, physical, pages));
+        physical += pages;
+        next = first + pages;
+    }
+    if h.void_mask_offset != 0 {
+        let pages = (8 + h.void_mask_bits_bytes()).div_ceil(PAGE_BYTES);
+        runs.push((h.void_mask_offset / PAGE_BYTES, physical, pages));
+    }
+    let map = PageMap::new(runs, h.file_len()).ok_or_else(|| corrupt("runs overlap or pass the end".into()))?;
+    let expected = PAGE_BYTES * (1 + map_pages) + stored_tail(&map, h);
+    if source.len() != expected {
+        return Err(super::file_error(path, FileKind::Terrain, Problem::Truncated { expected, found: source.len() }));
+    }
+    Ok(map)
+}
+
+/// The page map's bytes for payload runs `(first page, pages)`: checksum, count, runs, padded to
+/// whole pages.
+pub fn encode_page_map(runs: &[(u64, u64)]) -> Vec<u8> {
+    let mut bytes = vec![0u8; 16];
+    bytes[8..16].copy_from_slice(&(runs.len() as u64).to_le_bytes());
+    for &(first, pages) in runs {
+        bytes.extend_from_slice(&first.to_le_bytes());
+        bytes.extend_from_slice(&pages.to_le_bytes());
+    }
+    let checksum = xxhash_rust::xxh3::xxh3_64(&bytes[8..]);
+    bytes[..8].copy_from_slice(&checksum.to_le_bytes());
+    bytes.resize(bytes.len().next_multiple_of(PAGE_BYTES as usize), 0);
+    bytes
 }
 
 /// Which posts of a terrain's valid window were nodata in the DEM (their heights in the records

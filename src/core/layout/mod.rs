@@ -12,12 +12,14 @@ mod hz;
 mod interleaved;
 mod morton;
 mod row_major;
+pub mod stored;
 mod tiled;
 
 pub use embedded::Embedded;
 pub use hz::Hz;
 pub use interleaved::Interleaved;
 pub use row_major::RowMajor;
+pub use stored::Stored;
 pub use tiled::Tiled;
 
 use crate::layout::hierarchy::{split_children, Grid};

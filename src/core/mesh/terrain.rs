@@ -41,7 +41,7 @@ pub fn terrain_mesh(file: &TerrainFile, step: u32) -> Result<Mesh> {
         Mesh { positions: Vec::with_capacity(w * ht), triangles: Vec::with_capacity(2 * (w - 1) * (ht - 1)) };
     for &gy in &ys {
         for &gx in &xs {
-            mesh.positions.push([gx as f64 * sx, gy as f64 * sy, file.record_at(gx, gy)?.z as f64]);
+            mesh.positions.push([gx as f64 * sx, gy as f64 * sy, file.height_at(gx, gy)? as f64]);
         }
     }
     let w32 = w as u32;

@@ -27,6 +27,7 @@ pub mod pool;
 pub mod remote;
 pub mod serve;
 pub mod source;
+pub mod sparse;
 
 use std::ops::Deref;
 use std::sync::atomic::{AtomicU64, Ordering};

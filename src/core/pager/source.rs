@@ -60,6 +60,15 @@ pub trait Source: Send + Sync {
     fn device(&self) -> Option<&DeviceMount> {
         None
     }
+    /// The open local file underneath, where there is one (to map it again, see
+    /// [`super::sparse`]).
+    fn file(&self) -> Option<&File> {
+        None
+    }
+    /// Where the source's logical bytes are stored with pages left out, their map.
+    fn page_map(&self) -> Option<&super::sparse::PageMap> {
+        None
+    }
 }
 
 /// A source reading a device's served copy of a file (see [`open_on`]).
@@ -94,6 +103,9 @@ impl Source for OnDevice {
     }
     fn device(&self) -> Option<&DeviceMount> {
         Some(&self.mount)
+    }
+    fn file(&self) -> Option<&File> {
+        self.inner.file()
     }
 }
 
@@ -229,6 +241,10 @@ impl Source for MappedFile {
         unsafe { self.map.unchecked_advise(memmap2::UncheckedAdvice::DontNeed) }.at(&self.path)?;
         fadvise(&self.path, &self.file, libc::POSIX_FADV_DONTNEED)
     }
+
+    fn file(&self) -> Option<&File> {
+        Some(&self.file)
+    }
 }
 
 /// A file read with positioned reads.
@@ -275,6 +291,10 @@ impl Source for ReadFile {
 
     fn evict(&self) -> Result<()> {
         fadvise(&self.path, &self.file, libc::POSIX_FADV_DONTNEED)
+    }
+
+    fn file(&self) -> Option<&File> {
+        Some(&self.file)
     }
 }
 

@@ -16,6 +16,7 @@ use rayon::prelude::*;
 use crate::error::Result;
 use crate::format::terrain::Record;
 use crate::layout::hierarchy::{Grid, VertexKind};
+use crate::layout::Stored;
 
 /// Rounds to the nearest f32 that is not below `v` (so stored bounds stay conservative).
 #[inline]
@@ -43,13 +44,17 @@ pub fn raw_error(z: f32, za: f32, zb: f32) -> f64 {
     (z as f64 - 0.5 * (za as f64 + zb as f64)).abs()
 }
 
-/// Row-major heights and bounds (error, radius) shared across threads during one level.
+/// Heights and bounds (error, radius) shared across threads during one level: heights row-major
+/// over the DEM's `width × height` posts (a post beyond them reads as the nearest edge post: the
+/// edge-replicating padding, never stored), bounds row-major over the whole grid.
 ///
 /// Within a level every vertex is written by exactly one task (tasks own whole rows), and the
 /// bounds read are those of finer levels (children, finished); heights are only read. That is what
 /// makes the raw accesses sound.
 struct SharedRows {
     z: *const f32,
+    width: u32,
+    height: u32,
     bounds: *mut [f32; 2],
     side: usize,
 }
@@ -58,11 +63,17 @@ unsafe impl Sync for SharedRows {}
 
 impl SharedRows {
     #[inline(always)]
+    fn z(&self, x: u32, y: u32) -> f32 {
+        let i = y.min(self.height - 1) as usize * self.width as usize + x.min(self.width - 1) as usize;
+        // SAFETY: clamped into the height grid; heights are only read.
+        unsafe { self.z.add(i).read() }
+    }
+    #[inline(always)]
     fn get(&self, x: u32, y: u32) -> Record {
         let i = y as usize * self.side + x as usize;
         // SAFETY: in bounds (callers pass grid positions); see the type's note on aliasing.
-        let (z, [error, radius]) = unsafe { (self.z.add(i).read(), self.bounds.add(i).read()) };
-        Record { z, error, radius }
+        let [error, radius] = unsafe { self.bounds.add(i).read() };
+        Record { z: self.z(x, y), error, radius }
     }
     #[inline(always)]
     fn set_bounds(&self, x: u32, y: u32, error: f32, radius: f32) {
@@ -71,17 +82,24 @@ impl SharedRows {
     }
 }
 
-/// The nested error and radius of `(x, y)` from its own raw error and its children's records
-/// (general form, any vertex; the reference that the specialised level loops must match).
+/// The nested error and radius of `(x, y)` from its own raw error and its stored children's
+/// records (general form, any vertex; the reference that the specialised level loops must match).
 #[cfg(test)]
-fn nested(grid: Grid, spacing_m: [f64; 2], get: impl Fn(u32, u32) -> Record, x: u32, y: u32) -> (f64, f64) {
+fn nested(
+    grid: Grid,
+    stored: &Stored,
+    spacing_m: [f64; 2],
+    get: impl Fn(u32, u32) -> Record,
+    x: u32,
+    y: u32,
+) -> (f64, f64) {
     let me = get(x, y);
     let (mut err, mut rad) = match grid.split_edge(x, y) {
         Some([a, b]) => (raw_error(me.z, get(a.0, a.1).z, get(b.0, b.1).z), 0.0f64),
         None => (f64::INFINITY, 0.0),
     };
     let (children, count) = grid.dag_children(x, y);
-    for &(cx, cy) in &children[..count] {
+    for &(cx, cy) in children[..count].iter().filter(|c| stored.contains(c.0, c.1)) {
         let c = get(cx, cy);
         err = err.max(c.error as f64);
         rad = rad.max(distance_m(spacing_m, (x, y, me.z), (cx, cy, c.z)) + c.radius as f64);
@@ -89,9 +107,21 @@ fn nested(grid: Grid, spacing_m: [f64; 2], get: impl Fn(u32, u32) -> Record, x: 
     (err, rad)
 }
 
-/// Folds child `(cx, cy)` into the running error and radius of `(x, y, z)`.
+/// Folds child `(cx, cy)` into the running error and radius of `(x, y, z)`, if it is stored
+/// (`cx ≤ kmax.0`, `cy ≤ kmax.1`: the stored rectangle of the children's level). A null child is
+/// never active, so its parent need not contain it.
 #[inline(always)]
-fn fold_child(spacing_m: [f64; 2], rows: &SharedRows, me: (u32, u32, f32), (cx, cy): (u32, u32), acc: &mut (f64, f64)) {
+fn fold_child(
+    spacing_m: [f64; 2],
+    rows: &SharedRows,
+    kmax: (u32, u32),
+    me: (u32, u32, f32),
+    (cx, cy): (u32, u32),
+    acc: &mut (f64, f64),
+) {
+    if cx > kmax.0 || cy > kmax.1 {
+        return;
+    }
     let c = rows.get(cx, cy);
     acc.0 = acc.0.max(c.error as f64);
     acc.1 = acc.1.max(distance_m(spacing_m, me, (cx, cy, c.z)) + c.radius as f64);
@@ -99,33 +129,36 @@ fn fold_child(spacing_m: [f64; 2], rows: &SharedRows, me: (u32, u32, f32), (cx, 
 
 /// One row of one level: the vertices, their split edges and their children are known from the
 /// level alone, so this avoids the general classification of [`nested`] (same arithmetic, same
-/// results; a test compares the two).
+/// results; a test compares the two). Only the level's stored vertices (`x ≤ xmax`) are computed.
 #[inline(always)]
-fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: u32) -> u64 {
+fn level_row(grid: Grid, stored: &Stored, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: u32) -> u64 {
     let m = grid.max_coord();
     let odd = level % 2 == 1;
     let step = 1u32 << ((level - 1) / 2);
     let half = step / 2; // children of an edge midpoint are half a step away diagonally
+    let xmax = stored.max_at(level).0;
+    let kmax = if level > 1 { stored.max_at(level - 1) } else { (0, 0) };
     let mut count = 0u64;
     let mut finish = |x: u32, acc: (f64, f64)| {
         let err = if (x, y) == grid.centre() { f64::INFINITY } else { acc.0 };
         rows.set_bounds(x, y, f32_up(err), f32_up(acc.1));
         count += 1;
     };
+    let fold = |me: (u32, u32, f32), c: (u32, u32), acc: &mut (f64, f64)| fold_child(spacing_m, rows, kmax, me, c, acc);
     if odd && (y / step).is_multiple_of(2) {
         // Midpoints of horizontal edges: x = step, 3·step, …
         let mut x = step;
-        while x < m {
-            let z = rows.get(x, y).z;
-            let mut acc = (raw_error(z, rows.get(x - step, y).z, rows.get(x + step, y).z), 0.0);
+        while x < m && x <= xmax {
+            let z = rows.z(x, y);
+            let mut acc = (raw_error(z, rows.z(x - step, y), rows.z(x + step, y)), 0.0);
             if half > 0 {
                 if y < m {
-                    fold_child(spacing_m, rows, (x, y, z), (x + half, y + half), &mut acc);
-                    fold_child(spacing_m, rows, (x, y, z), (x - half, y + half), &mut acc);
+                    fold((x, y, z), (x + half, y + half), &mut acc);
+                    fold((x, y, z), (x - half, y + half), &mut acc);
                 }
                 if y > 0 {
-                    fold_child(spacing_m, rows, (x, y, z), (x - half, y - half), &mut acc);
-                    fold_child(spacing_m, rows, (x, y, z), (x + half, y - half), &mut acc);
+                    fold((x, y, z), (x - half, y - half), &mut acc);
+                    fold((x, y, z), (x + half, y - half), &mut acc);
                 }
             }
             finish(x, acc);
@@ -134,17 +167,17 @@ fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: 
     } else if odd {
         // Midpoints of vertical edges: x = 0, 2·step, …, 2^n.
         let mut x = 0;
-        while x <= m {
-            let z = rows.get(x, y).z;
-            let mut acc = (raw_error(z, rows.get(x, y - step).z, rows.get(x, y + step).z), 0.0);
+        while x <= m && x <= xmax {
+            let z = rows.z(x, y);
+            let mut acc = (raw_error(z, rows.z(x, y - step), rows.z(x, y + step)), 0.0);
             if half > 0 {
                 if x < m {
-                    fold_child(spacing_m, rows, (x, y, z), (x + half, y + half), &mut acc);
-                    fold_child(spacing_m, rows, (x, y, z), (x + half, y - half), &mut acc);
+                    fold((x, y, z), (x + half, y + half), &mut acc);
+                    fold((x, y, z), (x + half, y - half), &mut acc);
                 }
                 if x > 0 {
-                    fold_child(spacing_m, rows, (x, y, z), (x - half, y + half), &mut acc);
-                    fold_child(spacing_m, rows, (x, y, z), (x - half, y - half), &mut acc);
+                    fold((x, y, z), (x - half, y + half), &mut acc);
+                    fold((x, y, z), (x - half, y - half), &mut acc);
                 }
             }
             finish(x, acc);
@@ -154,19 +187,19 @@ fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: 
         // Square centres: x = step, 3·step, …; they bisect the diagonal joining the corner whose
         // coordinates are even multiples of 2·step with the one whose are odd multiples.
         let mut x = step;
-        while x < m {
-            let z = rows.get(x, y).z;
+        while x < m && x <= xmax {
+            let z = rows.z(x, y);
             let rising = (((x - step) / (2 * step)) + ((y - step) / (2 * step))).is_multiple_of(2);
             let (za, zb) = if rising {
-                (rows.get(x - step, y - step).z, rows.get(x + step, y + step).z)
+                (rows.z(x - step, y - step), rows.z(x + step, y + step))
             } else {
-                (rows.get(x - step, y + step).z, rows.get(x + step, y - step).z)
+                (rows.z(x - step, y + step), rows.z(x + step, y - step))
             };
             let mut acc = (raw_error(z, za, zb), 0.0);
-            fold_child(spacing_m, rows, (x, y, z), (x + step, y), &mut acc);
-            fold_child(spacing_m, rows, (x, y, z), (x, y + step), &mut acc);
-            fold_child(spacing_m, rows, (x, y, z), (x - step, y), &mut acc);
-            fold_child(spacing_m, rows, (x, y, z), (x, y - step), &mut acc);
+            fold((x, y, z), (x + step, y), &mut acc);
+            fold((x, y, z), (x, y + step), &mut acc);
+            fold((x, y, z), (x - step, y), &mut acc);
+            fold((x, y, z), (x, y - step), &mut acc);
             finish(x, acc);
             x += 2 * step;
         }
@@ -174,30 +207,38 @@ fn level_row(grid: Grid, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: 
     count
 }
 
-/// Computes error and radius (`bounds[i] = [error, radius]`) for every vertex of a row-major
-/// `grid` from its heights `z`. Heights and bounds live in separate arrays so that, during
-/// conversion, the mapped height pages are written once and only read afterwards.
-/// `progress` is called with the number of vertices finished after each row.
+/// Computes error and radius (`bounds[i] = [error, radius]`, row-major over the whole grid) for
+/// every stored vertex of `grid` over a DEM of `width × height` posts (see [`Stored`]) from its
+/// heights `z` (row-major, `width` per row; beyond the DEM a post has its nearest edge post's
+/// height). The bounds of null vertices are left as they are (zero in a fresh grid). Heights and
+/// bounds live in separate arrays so that, during conversion, the mapped height pages are written
+/// once and only read afterwards. `progress` is called with the number of vertices finished after
+/// each row.
+#[allow(clippy::too_many_arguments)]
 pub fn compute_bounds(
     grid: Grid,
     spacing_m: [f64; 2],
     z: &[f32],
+    [width, height]: [u32; 2],
     bounds: &mut [[f32; 2]],
     progress: &(dyn Fn(u64) + Sync),
     check_cancel: &(dyn Fn() -> Result<()> + Sync),
 ) -> Result<()> {
     let side = grid.size();
-    assert!(z.len() as u64 == grid.vertices() && bounds.len() == z.len(), "row-major grid expected");
-    let shared = SharedRows { z: z.as_ptr(), bounds: bounds.as_mut_ptr(), side: side as usize };
+    assert!(width >= 1 && height >= 1 && width <= side && height <= side, "DEM larger than its grid");
+    assert!(z.len() as u64 == width as u64 * height as u64 && bounds.len() as u64 == grid.vertices());
+    let stored = Stored::new(grid, width, height);
+    let shared = SharedRows { z: z.as_ptr(), width, height, bounds: bounds.as_mut_ptr(), side: side as usize };
     for level in 1..=grid.levels() {
         let step = 1u32 << ((level - 1) / 2);
+        let ymax = stored.max_at(level).1;
         // Edge midpoints lie on every row that is a multiple of step; square centres on odd
         // multiples.
         let (first, stride) = if level % 2 == 1 { (0, step) } else { (step, 2 * step) };
-        let rows: Vec<u32> = (first..side).step_by(stride as usize).collect();
+        let rows: Vec<u32> = (first..side.min(ymax + 1)).step_by(stride as usize).collect();
         rows.par_iter().try_for_each(|&y| -> Result<()> {
             check_cancel()?;
-            progress(level_row(grid, spacing_m, &shared, level, y));
+            progress(level_row(grid, &stored, spacing_m, &shared, level, y));
             Ok(())
         })?;
     }
@@ -209,14 +250,24 @@ pub fn compute_bounds(
 
 /// Checks the stored bounds of `(x, y)` against its raw error and its children, recomputed exactly
 /// as [`compute_bounds`] does. Returns a description of the first violated inequality.
+///
+/// A null vertex (not in `stored`) must be all zero; a stored one need not contain its null
+/// children (they are never active).
 pub fn nesting_violation(
     grid: Grid,
+    stored: &Stored,
     spacing_m: [f64; 2],
     get: impl Fn(u32, u32) -> Record,
     x: u32,
     y: u32,
 ) -> Option<String> {
     let me = get(x, y);
+    if !stored.contains(x, y) {
+        if bytemuck::bytes_of(&me).iter().any(|&b| b != 0) {
+            return Some(format!("({x}, {y}): a null (unstored) vertex with a non-zero record {me:?}"));
+        }
+        return None;
+    }
     if !me.z.is_finite() {
         return Some(format!("({x}, {y}): height {} is not finite", me.z));
     }
@@ -234,7 +285,7 @@ pub fn nesting_violation(
         }
     }
     let (children, count) = grid.dag_children(x, y);
-    for &(cx, cy) in &children[..count] {
+    for &(cx, cy) in children[..count].iter().filter(|c| stored.contains(c.0, c.1)) {
         let c = get(cx, cy);
         if me.error < c.error {
             return Some(format!("({x}, {y}): error {} below child ({cx}, {cy})'s {}", me.error, c.error));
@@ -267,7 +318,7 @@ mod tests {
     fn run(g: Grid, spacing: [f64; 2], recs: &mut [Record]) {
         let z: Vec<f32> = recs.iter().map(|r| r.z).collect();
         let mut bounds = vec![[0.0f32; 2]; z.len()];
-        compute_bounds(g, spacing, &z, &mut bounds, &|_| {}, &|| Ok(())).unwrap();
+        compute_bounds(g, spacing, &z, [g.size(), g.size()], &mut bounds, &|_| {}, &|| Ok(())).unwrap();
         for (r, [e, rad]) in recs.iter_mut().zip(bounds) {
             (r.error, r.radius) = (e, rad);
         }
@@ -290,10 +341,10 @@ mod tests {
                 if g.kind(x, y) == VertexKind::Corner {
                     continue;
                 }
-                let (e, r) = nested(g, spacing, get, x, y);
+                let (e, r) = nested(g, &Stored::all(g), spacing, get, x, y);
                 let e = if (x, y) == g.centre() { f64::INFINITY } else { e };
                 assert_eq!((get(x, y).error, get(x, y).radius), (f32_up(e), f32_up(r)), "({x},{y})");
-                assert_eq!(nesting_violation(g, spacing, get, x, y), None);
+                assert_eq!(nesting_violation(g, &Stored::all(g), spacing, get, x, y), None);
             }
         }
     }
@@ -317,7 +368,10 @@ mod tests {
                 } else {
                     assert!(r.radius > 0.0);
                 }
-                assert_eq!(nesting_violation(g, [1.0, 1.0], |a, b| recs[b as usize * s + a as usize], x, y), None);
+                assert_eq!(
+                    nesting_violation(g, &Stored::all(g), [1.0, 1.0], |a, b| recs[b as usize * s + a as usize], x, y),
+                    None
+                );
             }
         }
     }
@@ -350,5 +404,43 @@ mod tests {
         let s = g.size() as usize;
         // (1,1) is a square centre at step 1: children (0,1), (2,1), (1,0), (1,2) at 3 m and 4 m.
         assert_eq!(recs[s + 1].radius, 4.0);
+    }
+
+    /// A DEM smaller than its grid: the stored vertices' bounds are the general definition's
+    /// over stored children, with heights beyond the DEM those of its edge; null vertices stay
+    /// zero; the nesting check passes everywhere.
+    #[test]
+    fn a_smaller_dem_computes_only_its_stored_vertices() {
+        let g = Grid::new(6).unwrap();
+        let (w, h) = (40u32, 21u32);
+        let dem = |x: u32, y: u32| ((x * 7 + y * 13) % 29) as f32 * 0.7 + (x as f32 * 0.3).sin() * 5.0;
+        let z: Vec<f32> = (0..h).flat_map(|y| (0..w).map(move |x| dem(x, y))).collect();
+        let mut bounds = vec![[0.0f32; 2]; g.vertices() as usize];
+        let spacing = [2.0, 3.0];
+        compute_bounds(g, spacing, &z, [w, h], &mut bounds, &|_| {}, &|| Ok(())).unwrap();
+        let stored = Stored::new(g, w, h);
+        let s = g.size() as usize;
+        let get = |x: u32, y: u32| {
+            let [error, radius] = bounds[y as usize * s + x as usize];
+            let z = if stored.contains(x, y) { dem(x.min(w - 1), y.min(h - 1)) } else { 0.0 };
+            Record { z, error, radius }
+        };
+        let clamped = |x: u32, y: u32| Record { z: dem(x.min(w - 1), y.min(h - 1)), ..get(x, y) };
+        let mut nulls = 0;
+        for y in 0..g.size() {
+            for x in 0..g.size() {
+                assert_eq!(nesting_violation(g, &stored, spacing, get, x, y), None, "({x},{y})");
+                if !stored.contains(x, y) {
+                    assert_eq!(bounds[y as usize * s + x as usize], [0.0, 0.0]);
+                    nulls += 1;
+                } else if g.kind(x, y) != VertexKind::Corner {
+                    let (e, r) = nested(g, &stored, spacing, clamped, x, y);
+                    let e = if (x, y) == g.centre() { f64::INFINITY } else { e };
+                    assert_eq!((get(x, y).error, get(x, y).radius), (f32_up(e), f32_up(r)), "({x},{y})");
+                }
+            }
+        }
+        assert_eq!(nulls as u64, g.vertices() - stored.count());
+        assert!(nulls > 3000, "{nulls}");
     }
 }

@@ -1,10 +1,12 @@
 //! DEM → terrain file conversion with bounded anonymous memory.
 //!
 //! Steps: stream the DEM into a memory-mapped row-major grid of heights (file-backed scratch, so
-//! the kernel may page it out; anonymous memory stays O(row)), fill voids, pad to (2^n + 1)² by
-//! edge replication, compute nested errors and radii level by level into a second mapped grid,
-//! then write the records in the layout's order into a temporary output file with positioned
-//! writes (checksumming block by block), write the header, sync, and rename over the final name.
+//! the kernel may page it out; anonymous memory stays O(row)), fill voids, compute nested errors
+//! and radii level by level into a second mapped grid for the vertices a file stores (the DEM's
+//! posts and their ancestors in the (2^n + 1)² grid, [`Stored`]; the padding beyond reads the edge
+//! heights and is never stored), find the payload pages that hold stored records, then write those
+//! pages in the layout's order into a temporary output file with positioned writes (checksumming
+//! block by block), write the page map and the header, sync, and rename over the final name.
 //! Heights and bounds live in separate scratch grids so that each scratch page is dirtied once:
 //! re-dirtying pages the kernel has already written back doubled the I/O on large grids. An error
 //! or a Ctrl-C at any point drops the temporary files, so the final name holds either the old file
@@ -21,10 +23,11 @@ use serde::Serialize;
 use crate::dem::{self, DemFormat, Run, SourceSpacing};
 use crate::error::{Error, IoContext, Result};
 use crate::format::terrain::{
-    self, Header, Record, TerrainFile, VoidMask, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED, PAYLOAD_OFFSET, RECORD_BYTES,
+    self, Header, Record, TerrainFile, VoidMask, FLAG_GEOGRAPHIC, FLAG_SPACING_ASSUMED, FLAG_STORED_PAGES,
+    PAYLOAD_OFFSET, RECORD_BYTES,
 };
 use crate::layout::hierarchy::{Grid, MAX_N};
-use crate::layout::{AnyLayout, Layout, LayoutKind};
+use crate::layout::{AnyLayout, Layout, LayoutKind, Stored};
 use crate::pager::source::MAX_MAPPED_BYTES;
 use crate::preprocess;
 use crate::preprocess::fill;
@@ -99,6 +102,11 @@ pub struct ConvertReport {
     pub layout: String,
     pub records: u64,
     pub vertices: u64,
+    /// Vertices with records: the DEM's posts and their ancestors in the grid.
+    pub stored_vertices: u64,
+    /// Payload pages (4 KiB) written, of the index space's.
+    pub stored_pages: u64,
+    pub payload_pages: u64,
     pub spacing_m: [f64; 2],
     pub spacing_source: &'static str,
     pub nodata_filled: u64,
@@ -364,11 +372,12 @@ fn convert_source(
         return Err(Error::io(output, std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a directory")));
     }
     let side = grid.size() as usize;
-    let vertices = grid.vertices() as usize;
-    // Sizes in u128 (at n = 31 they overflow u64). The output is mapped whole when read, and both
-    // scratch grids are mapped whole here: refuse what cannot be mapped before creating anything.
+    let stored = Stored::new(grid, width, height);
+    let row = width as usize; // the height scratch holds the DEM's posts only
+                              // Sizes in u128 (at n = 31 they overflow u64). The output is mapped whole when read, and both
+                              // scratch grids are mapped whole here: refuse what cannot be mapped before creating anything.
     let file_len = layout.records() as u128 * RECORD_BYTES as u128 + PAYLOAD_OFFSET as u128;
-    let z_len = grid.vertices() as u128 * std::mem::size_of::<f32>() as u128;
+    let z_len = width as u128 * height as u128 * std::mem::size_of::<f32>() as u128;
     let bounds_len = grid.vertices() as u128 * std::mem::size_of::<[f32; 2]>() as u128;
     for (what, bytes) in [("terrain file", file_len), ("conversion scratch", z_len + bounds_len)] {
         if bytes > MAX_MAPPED_BYTES as u128 {
@@ -381,12 +390,12 @@ fn convert_source(
     let payload_bytes = file_len - PAYLOAD_OFFSET;
     let out_tmp = crate::sys::atomic_file::temp_beside(output)?;
     // The output is written once, sequentially, with positioned writes (no page faults, no
-    // zero-filling of fresh pages); blocks of unused index slots are left as holes.
+    // zero-filling of fresh pages).
     let out_file = out_tmp.reopen().at(output)?;
-    out_file.set_len(file_len).map_err(|e| file_system_limit(e, output, file_len))?;
     // Scratch: heights and bounds in separate row-major grids, so each scratch page is written
     // once (heights while reading, bounds while preprocessing) and never re-dirtied after the
-    // kernel has written it back.
+    // kernel has written it back. The bounds grid spans the whole square but only the stored
+    // vertices' pages are ever touched: the rest stays holes.
     let scratch_dir = opts.scratch_dir.clone().unwrap_or_else(|| out_dir.clone());
     let mut z_map = MappedFile::scratch(&scratch_dir, z_len)?;
     let mut bounds_map = MappedFile::scratch(&scratch_dir, bounds_len)?;
@@ -418,7 +427,7 @@ fn convert_source(
                     ));
                 }
                 let y = (height - 1 - run.row) as usize;
-                let dst = &mut z_grid[y * side + run.x0 as usize..y * side + end as usize];
+                let dst = &mut z_grid[y * row + run.x0 as usize..y * row + end as usize];
                 for (r, &v) in dst.iter_mut().zip(run.values) {
                     let z = v * z_scale + z_offset;
                     if z.is_finite() {
@@ -448,36 +457,52 @@ fn convert_source(
         if nan_count > 0 {
             let mut mask = VoidMask::new([0, 0, width, height]);
             for y in 0..height {
-                let row = &z_grid[y as usize * side..y as usize * side + width as usize];
-                for (x, z) in row.iter().enumerate() {
+                let posts = &z_grid[y as usize * row..(y as usize + 1) * row];
+                for (x, z) in posts.iter().enumerate() {
                     if z.is_nan() {
                         mask.set(x as u32, y);
                     }
                 }
             }
             void_mask = Some(mask);
-            let filled = fill::fill_voids(z_grid, bounds_grid, side, width as usize, height as usize);
+            // The bounds grid is the accumulators' scratch (zero again on return).
+            let acc = &mut bounds_grid[..z_grid.len()];
+            let filled = fill::fill_voids(z_grid, acc, row, width as usize, height as usize);
             debug_assert_eq!(filled, nan_count);
             // Filled values are weighted means of valid ones, but f32 rounding can step just
             // outside the valid range: take the range of what is stored.
-            (z_min, z_max) = fill::height_range(z_grid, side, width as usize, height as usize);
+            (z_min, z_max) = fill::height_range(z_grid, row, width as usize, height as usize);
         }
-        fill::pad(z_grid, side, width as usize, height as usize);
         steps.fill = t.elapsed().as_secs_f64();
         cancel::check()?;
 
         // 3. Nested errors and radii.
         let t = Instant::now();
-        let bar = opts.progress.bar("bounds", vertices as u64, "vertices");
-        preprocess::compute_bounds(grid, spacing_m, z_grid, bounds_grid, &|k| bar.inc(k), &cancel::check)?;
+        let bar = opts.progress.bar("bounds", stored.count(), "vertices");
+        preprocess::compute_bounds(
+            grid,
+            spacing_m,
+            z_grid,
+            [width, height],
+            bounds_grid,
+            &|k| bar.inc(k),
+            &cancel::check,
+        )?;
         bar.finish_and_clear();
         steps.bounds = t.elapsed().as_secs_f64();
     }
 
-    // 4. Gather into the layout's order, checksumming block by block.
+    // 4. The payload pages that hold stored records, then those pages in the layout's order,
+    // checksumming block by block.
     let t = Instant::now();
-    let bar = opts.progress.bar("layout", layout.records(), "records");
-    let hashes = gather(&layout, z_grid, bounds_grid, side, &out_file, output, &|k| bar.inc(k))?;
+    let pages = stored_pages(&layout, &stored, payload_bytes);
+    let map_bytes = terrain::encode_page_map(&pages.runs());
+    let map_pages = map_bytes.len() as u64 / 4096;
+    let bar = opts.progress.bar("layout", pages.count, "pages");
+    let heights = Heights { z: z_grid, width, height };
+    let first_page = 1 + map_pages;
+    let hashes =
+        gather(&layout, &stored, heights, bounds_grid, side, &pages, first_page, &out_file, output, &|k| bar.inc(k))?;
     bar.finish_and_clear();
     let payload_checksum = terrain::combine_block_hashes(&hashes);
     drop((z_map, bounds_map));
@@ -492,7 +517,7 @@ fn convert_source(
         record_format: terrain::RECORD_FORMAT_F32,
         record_bytes: RECORD_BYTES,
         n: grid.n(),
-        flags,
+        flags: flags | FLAG_STORED_PAGES,
         valid_window: [0, 0, width, height],
         source_format: DemFormat::ALL.iter().position(|f| *f == info.format).unwrap_or(0) as u32,
         records: layout.records(),
@@ -508,19 +533,26 @@ fn convert_source(
         source_spacing_deg: spacing_deg,
         georef: info.georef,
         void_mask_offset: 0,
+        page_map_pages: map_pages as u32,
         payload_checksum,
     };
     cancel::check()?;
+    let file_bytes;
     {
         use std::os::unix::fs::FileExt;
+        // On disk: header page, page map, stored pages (whole), void mask.
+        let mask_at = 4096 * (first_page + pages.count);
+        let mut stored_len = mask_at;
         if let Some(mask) = &void_mask {
             header.void_mask_offset = header.void_mask_start();
-            let at = header.void_mask_offset;
-            out_file.set_len(header.file_len()).map_err(|e| file_system_limit(e, output, header.file_len()))?;
-            out_file.write_all_at(&mask.checksum().to_le_bytes(), at).at(output)?;
-            out_file.write_all_at(&mask.bits, at + 8).at(output)?;
+            stored_len = mask_at + 8 + mask.bits.len() as u64;
+            out_file.write_all_at(&mask.checksum().to_le_bytes(), mask_at).at(output)?;
+            out_file.write_all_at(&mask.bits, mask_at + 8).at(output)?;
         }
+        out_file.set_len(stored_len).map_err(|e| file_system_limit(e, output, stored_len))?;
+        out_file.write_all_at(&map_bytes, 4096).at(output)?;
         out_file.write_all_at(&crate::format::Format::encode(&header).0, 0).at(output)?;
+        file_bytes = stored_len;
     }
     out_file.sync_all().at(output)?;
     drop(out_file);
@@ -541,36 +573,138 @@ fn convert_source(
         layout: layout.kind().name().into(),
         records: layout.records(),
         vertices: grid.vertices(),
+        stored_vertices: stored.count(),
+        stored_pages: pages.count,
+        payload_pages: payload_bytes.div_ceil(4096),
         spacing_m,
         spacing_source,
         nodata_filled: nan_count,
         z_min,
         z_max,
-        file_bytes: header.file_len(),
+        file_bytes,
         seconds,
         steps,
-        vertices_per_s: grid.vertices() as f64 / seconds,
+        vertices_per_s: stored.count() as f64 / seconds,
         peak_rss_anon_bytes: sampler.finish(),
     })
 }
 
-/// Writes the payload in layout order: record `i` = the grid's `coords(i)` post, zero
-/// otherwise, in parallel blocks of [`terrain::CHECKSUM_BLOCK_BYTES`] with positioned writes.
-/// Returns the blocks' hashes in order. Blocks with no used slot are not written (holes read as
-/// zeros).
+/// The DEM's heights, row-major from the south; a post beyond them has its nearest edge post's.
+#[derive(Clone, Copy)]
+struct Heights<'a> {
+    z: &'a [f32],
+    width: u32,
+    height: u32,
+}
+
+impl Heights<'_> {
+    #[inline]
+    fn at(&self, x: u32, y: u32) -> f32 {
+        self.z[y.min(self.height - 1) as usize * self.width as usize + x.min(self.width - 1) as usize]
+    }
+}
+
+/// Which payload pages (4 KiB, from the payload's start) hold a stored record.
+struct PresentPages {
+    bits: Vec<u64>,
+    count: u64,
+}
+
+impl PresentPages {
+    fn has(&self, page: u64) -> bool {
+        self.bits.get((page / 64) as usize).is_some_and(|w| w >> (page % 64) & 1 == 1)
+    }
+
+    /// Runs of present pages `(first, pages)`.
+    fn runs(&self) -> Vec<(u64, u64)> {
+        let mut runs: Vec<(u64, u64)> = Vec::new();
+        for (k, &w) in self.bits.iter().enumerate() {
+            let mut w = w;
+            while w != 0 {
+                let p = k as u64 * 64 + w.trailing_zeros() as u64;
+                w &= w - 1;
+                match runs.last_mut() {
+                    Some(last) if last.0 + last.1 == p => last.1 += 1,
+                    _ => runs.push((p, 1)),
+                }
+            }
+        }
+        runs
+    }
+}
+
+/// Marks the pages of every stored vertex's record (level by level, rows in parallel).
+fn stored_pages(layout: &AnyLayout, stored: &Stored, payload_bytes: u64) -> PresentPages {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    struct Mark<'a> {
+        stored: &'a Stored,
+        words: &'a [AtomicU64],
+    }
+    impl crate::layout::LayoutVisitor for Mark<'_> {
+        type Output = ();
+        fn visit<L: Layout>(self, layout: &L) {
+            let grid = layout.grid();
+            let mark = |x: u32, y: u32| {
+                let at = layout.index(x, y) * RECORD_BYTES as u64;
+                for page in [at / 4096, (at + RECORD_BYTES as u64 - 1) / 4096] {
+                    self.words[(page / 64) as usize].fetch_or(1 << (page % 64), Ordering::Relaxed);
+                }
+            };
+            for (x, y) in grid.corners() {
+                mark(x, y);
+            }
+            for level in 1..=grid.levels() {
+                let step = 1u32 << ((level - 1) / 2);
+                let (xmax, ymax) = self.stored.max_at(level);
+                let (first, stride) = if level % 2 == 1 { (0, step) } else { (step, 2 * step) };
+                let rows: Vec<u32> = (first..=ymax).step_by(stride as usize).collect();
+                rows.par_iter().for_each(|&y| {
+                    // Square centres and horizontal-edge midpoints start at step, vertical-edge
+                    // midpoints at 0; all go by 2·step.
+                    let x0 = if level % 2 == 0 || (y / step).is_multiple_of(2) { step } else { 0 };
+                    let mut x = x0;
+                    while x <= xmax {
+                        if !(grid.kind(x, y) == crate::layout::hierarchy::VertexKind::Corner) {
+                            mark(x, y);
+                        }
+                        x += 2 * step;
+                    }
+                });
+            }
+        }
+    }
+    let pages = payload_bytes.div_ceil(4096);
+    let words: Vec<AtomicU64> = (0..pages.div_ceil(64)).map(|_| AtomicU64::new(0)).collect();
+    layout.visit(Mark { stored, words: &words });
+    let bits: Vec<u64> = words.into_iter().map(AtomicU64::into_inner).collect();
+    let count = bits.iter().map(|w| w.count_ones() as u64).sum();
+    PresentPages { bits, count }
+}
+
+/// Writes the payload's present pages in layout order: record `i` = the grid's `coords(i)` post
+/// where it is stored, zero otherwise, in parallel blocks of [`terrain::CHECKSUM_BLOCK_BYTES`] with
+/// positioned writes, present page `k` (in order) at file page `first_page + k`. Returns the
+/// blocks' hashes in order, over every page of the payload as read (left-out pages are zeros).
+#[allow(clippy::too_many_arguments)]
 fn gather(
     layout: &AnyLayout,
-    z: &[f32],
+    stored: &Stored,
+    heights: Heights<'_>,
     bounds: &[[f32; 2]],
     side: usize,
+    pages: &PresentPages,
+    first_page: u64,
     out: &File,
     output: &Path,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Vec<u64>> {
     struct Gather<'a> {
-        z: &'a [f32],
+        stored: &'a Stored,
+        heights: Heights<'a>,
         bounds: &'a [[f32; 2]],
         side: usize,
+        pages: &'a PresentPages,
+        first_page: u64,
         out: &'a File,
         output: &'a Path,
         progress: &'a (dyn Fn(u64) + Sync),
@@ -579,10 +713,21 @@ fn gather(
         type Output = Result<Vec<u64>>;
         fn visit<L: Layout>(self, layout: &L) -> Result<Vec<u64>> {
             use std::os::unix::fs::FileExt;
-            let per_block = terrain::CHECKSUM_BLOCK_BYTES / RECORD_BYTES as usize;
+            let block_bytes = terrain::CHECKSUM_BLOCK_BYTES;
+            let pages_per_block = (block_bytes / 4096) as u64;
+            let per_block = block_bytes / RECORD_BYTES as usize;
             let records = layout.records() as usize;
-            let (z, bounds, side) = (self.z, self.bounds, self.side);
-            (0..records.div_ceil(per_block))
+            let blocks = records.div_ceil(per_block);
+            // Present pages before each block: where its pages go in the file.
+            let mut before = Vec::with_capacity(blocks);
+            let mut total = 0u64;
+            for b in 0..blocks as u64 {
+                before.push(total);
+                total += (b * pages_per_block..(b + 1) * pages_per_block).filter(|&p| self.pages.has(p)).count() as u64;
+            }
+            let zero_hash = terrain::block_hash(&vec![0u8; block_bytes]);
+            let (stored, heights, bounds, side) = (self.stored, self.heights, self.bounds, self.side);
+            (0..blocks)
                 .into_par_iter()
                 .map_init(
                     || vec![Record::default(); per_block],
@@ -590,29 +735,52 @@ fn gather(
                         cancel::check()?;
                         let first = b * per_block;
                         let buf = &mut buf[..per_block.min(records - first)];
-                        let mut used = false;
-                        for (k, r) in buf.iter_mut().enumerate() {
-                            *r = match layout.coords((first + k) as u64) {
-                                Some((x, y)) => {
-                                    used = true;
-                                    let i = y as usize * side + x as usize;
-                                    let [error, radius] = bounds[i];
-                                    Record { z: z[i], error, radius }
+                        let bytes_len = std::mem::size_of_val(buf);
+                        let page0 = b as u64 * pages_per_block;
+                        let present: Vec<u64> =
+                            (0..bytes_len.div_ceil(4096) as u64).filter(|&k| self.pages.has(page0 + k)).collect();
+                        if present.is_empty() {
+                            return Ok(if bytes_len == block_bytes {
+                                zero_hash
+                            } else {
+                                terrain::block_hash(&vec![0u8; bytes_len])
+                            });
+                        }
+                        buf.fill(Record::default());
+                        for &k in &present {
+                            let lo = (k as usize * 4096) / RECORD_BYTES as usize;
+                            let hi = ((k as usize + 1) * 4096).div_ceil(RECORD_BYTES as usize).min(buf.len());
+                            for (j, r) in buf[lo..hi].iter_mut().enumerate() {
+                                if let Some((x, y)) = layout.coords((first + lo + j) as u64) {
+                                    if stored.contains(x, y) {
+                                        let [error, radius] = bounds[y as usize * side + x as usize];
+                                        *r = Record { z: heights.at(x, y), error, radius };
+                                    }
                                 }
-                                None => Record::default(),
-                            };
+                            }
                         }
                         let bytes: &[u8] = bytemuck::cast_slice(buf);
-                        if used {
-                            let at = PAYLOAD_OFFSET + (first * RECORD_BYTES as usize) as u64;
-                            self.out.write_all_at(bytes, at).at(self.output)?;
+                        // Consecutive present pages in one write.
+                        let mut i = 0;
+                        let mut slot = before[b];
+                        while i < present.len() {
+                            let mut j = i + 1;
+                            while j < present.len() && present[j] == present[j - 1] + 1 {
+                                j += 1;
+                            }
+                            let (s, e) =
+                                (present[i] as usize * 4096, ((present[j - 1] as usize + 1) * 4096).min(bytes_len));
+                            let at = (self.first_page + slot) * 4096;
+                            self.out.write_all_at(&bytes[s..e], at).at(self.output)?;
+                            slot += (j - i) as u64;
+                            i = j;
                         }
-                        (self.progress)(buf.len() as u64);
+                        (self.progress)(present.len() as u64);
                         Ok(terrain::block_hash(bytes))
                     },
                 )
                 .collect()
         }
     }
-    layout.visit(Gather { z, bounds, side, out, output, progress })
+    layout.visit(Gather { stored, heights, bounds, side, pages, first_page, out, output, progress })
 }

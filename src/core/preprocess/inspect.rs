@@ -140,7 +140,7 @@ pub fn info(file: &TerrainFile) -> Info {
         source_format: DemFormat::ALL.get(h.source_format as usize).map(|f| f.name()).unwrap_or("unknown").into(),
         geographic,
         crs: h.georef.as_ref().map(|g| CrsInfo::new(g, h.valid_window)),
-        file_bytes: h.file_len(),
+        file_bytes: file.stored_bytes(),
         payload_checksum: format!("{:016x}", h.payload_checksum),
     }
 }
@@ -181,6 +181,7 @@ pub fn verify(file: &TerrainFile, progress: Progress) -> Result<VerifyReport> {
         }
     };
     let side = grid.size();
+    let stored = h.stored();
     let get = |x: u32, y: u32| records[layout.index(x, y) as usize];
     let (z_lo, z_hi) = (h.z_min as f32, h.z_max as f32);
     let bar = progress.bar("verify", grid.vertices(), "vertices");
@@ -190,9 +191,12 @@ pub fn verify(file: &TerrainFile, progress: Progress) -> Result<VerifyReport> {
             cancel::check()?;
             let (mut bad, mut range, mut first) = (0u64, 0u64, None);
             for x in 0..side {
-                if let Some(p) = nesting_violation(grid, h.spacing_m, get, x, y) {
+                if let Some(p) = nesting_violation(grid, &stored, h.spacing_m, get, x, y) {
                     bad += 1;
                     first.get_or_insert(p);
+                }
+                if !stored.contains(x, y) {
+                    continue;
                 }
                 let z = get(x, y).z;
                 if !(z >= z_lo && z <= z_hi) {

@@ -103,10 +103,11 @@ mod imp {
             let rz = _mm_sub_ps(ze, ld(&f.eye_z));
             let d2 = _mm_add_ps(sxy, _mm_mul_ps(rz, rz));
             let e = _mm_movehl_ps(ze, ze);
-            let reach =
-                _mm_add_ps(_mm_mul_ps(_mm_add_ps(_mm_mul_ps(ld(&f.kappa), e), radius), ld(&f.grow[lv])), ld(&f.mu[lv]));
-            // reach² > d², false for NaN, as the scalar test.
-            let bits = (_mm_movemask_ps(_mm_cmpgt_ps(_mm_mul_ps(reach, reach), d2)) & 3) as u32;
+            let own = _mm_add_ps(_mm_mul_ps(ld(&f.kappa), e), radius);
+            let reach = _mm_add_ps(_mm_mul_ps(own, ld(&f.grow[lv])), ld(&f.mu[lv]));
+            // reach² > d² and κδ + r > 0, false for NaN, as the scalar test.
+            let on = _mm_and_ps(_mm_cmpgt_ps(_mm_mul_ps(reach, reach), d2), _mm_cmpgt_ps(own, _mm_setzero_ps()));
+            let bits = (_mm_movemask_ps(on) & 3) as u32;
             Pair { bits, rel, rz, reach, radius }
         }
     }
@@ -278,6 +279,7 @@ mod tests {
                 let radius = ((v >> 24) % 3000) as f32;
                 match v % 97 {
                     0 => [z, f32::NAN, radius, 0.0],
+                    2 | 3 => [z, 0.0, 0.0, 0.0],
                     1 => [f32::NAN, error, radius, 0.0],
                     _ => [z, error, radius, f32::from_bits(v as u32)],
                 }

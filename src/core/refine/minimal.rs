@@ -11,7 +11,7 @@ use std::collections::HashSet;
 
 use serde::Serialize;
 
-use crate::layout::Layout;
+use crate::layout::{Layout, Stored};
 use crate::preprocess::raw_error;
 use crate::refine::metric::ErrorMetric;
 use crate::refine::{mesh_triangles, RecordSource, Strip, View};
@@ -25,9 +25,10 @@ pub struct MinimalMesh {
 }
 
 /// The minimal mesh for `view`, found among the vertices of `nested` (a strip refined for the same
-/// view and tolerance).
+/// view and tolerance), over the `stored` vertices.
 pub fn minimal_mesh<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric>(
     layout: &L,
+    stored: &Stored,
     records: &R,
     view: &View<M>,
     nested: &Strip,
@@ -38,7 +39,9 @@ pub fn minimal_mesh<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric>(
     let mut candidates: Vec<(u32, u32, u32)> = nested
         .vertices
         .iter()
-        .filter(|v| !((v.x == 0 || v.x == m) && (v.y == 0 || v.y == m)))
+        // Corners are not inserted; null vertices (padding without data below, see `Stored`)
+        // have no error of their own.
+        .filter(|v| !((v.x == 0 || v.x == m) && (v.y == 0 || v.y == m)) && stored.contains(v.x, v.y))
         .map(|v| (grid.level(v.x, v.y), v.x, v.y))
         .collect();
     candidates.sort_unstable();

@@ -303,9 +303,12 @@ impl Fast {
         let [rx, ry, rz] = self.rel(x, y, rec.z);
         let l = level as usize & 63;
         let d2 = (rx * rx + ry * ry) + rz * rz;
-        let reach = (self.kappa[0] * rec.error + rec.radius) * self.grow[l][0] + self.mu[l][0];
-        // Written so that a NaN anywhere (a corrupt or missing record) reads as inactive.
-        let active = reach * reach > d2;
+        let own = self.kappa[0] * rec.error + rec.radius;
+        let reach = own * self.grow[l][0] + self.mu[l][0];
+        // Written so that a NaN anywhere (a corrupt or missing record) reads as inactive. A record
+        // of error and radius 0 (a null vertex, see `layout::stored`, or a flat finest-level post)
+        // is never active: the slack `mu` must not make it so.
+        let active = reach * reach > d2 && own > 0.0;
         if !active {
             return Test::Inactive;
         }
@@ -389,6 +392,10 @@ impl<M: ErrorMetric> View<M> {
     pub fn test<const CULL: bool>(&self, x: u32, y: u32, level: u32, rec: Record, mask: u8) -> Test {
         if M::EUCLIDEAN {
             return self.fast.test::<CULL>(x, y, level, rec, mask);
+        }
+        // A null record (error and radius 0) is never active, whatever the slack (as in f32).
+        if !(self.lod.kappa * rec.error as f64 + rec.radius as f64 > 0.0) {
+            return Test::Inactive;
         }
         let rel = self.position(x, y, rec.z) - self.lod.eye;
         let r = rec.radius as f64 + self.slack(level);

@@ -37,7 +37,8 @@ use crate::error::{Error, Result};
 use crate::format::terrain::{Header, Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
 use crate::layout::hierarchy::{Grid, VertexKind};
 use crate::layout::{AnyLayout, Layout, LayoutVisitor};
-use crate::pager::remote::PAGE_BYTES;
+use crate::pager::remote::{RemoteFile, PAGE_BYTES};
+use crate::pager::sparse::PageMap;
 use crate::refine::records::RecordSource;
 use crate::refine::{Morph, RefineCounters, RefineOptions, Refiner, Strip};
 
@@ -303,13 +304,14 @@ impl Progressive {
         // Blocks wholly in the cache are resident from the start.
         let first_page = h.payload_offset / PAGE_BYTES;
         let end_page = (h.payload_offset + h.payload_bytes).div_ceil(PAGE_BYTES);
-        let present = remote.cache().present(first_page, end_page)?;
+        let map = terrain.page_map();
+        let present = present_pages(remote, map, first_page, end_page)?;
         let mut have = Vec::new();
         for b in 0..n_blocks {
             let (start, end) = block_range(h, b);
             let pages = (start / PAGE_BYTES - first_page) as usize..(end.div_ceil(PAGE_BYTES) - first_page) as usize;
             if present[pages].iter().all(|&x| x) {
-                have.push((b, decode(&remote.cache().get(start, end)?)));
+                have.push((b, decode(&cached_bytes(remote, map, start, end)?)));
             }
         }
         let mut settle = Settle::new(terrain.layout().clone(), n_blocks as usize);
@@ -487,6 +489,63 @@ fn block_range(h: &Header, b: u64) -> (u64, u64) {
     (start, (start + BLOCK_BYTES).min(h.payload_offset + h.payload_bytes))
 }
 
+/// Whether logical pages `first..end` of the terrain file are in the remote's cache; where the file
+/// leaves pages out (`map`), those read as zeros and count as present.
+fn present_pages(remote: &RemoteFile, map: Option<&PageMap>, first: u64, end: u64) -> Result<Vec<bool>> {
+    let Some(map) = map else { return remote.cache().present(first, end) };
+    let physical = remote.cache().present(0, crate::pager::source::Source::len(remote).div_ceil(PAGE_BYTES))?;
+    Ok((first..end)
+        .map(|p| map.physical(p).is_none_or(|q| physical.get(q as usize).copied().unwrap_or(false)))
+        .collect())
+}
+
+/// Logical bytes `start..end` from the remote's cache (pages present), zeros where left out.
+fn cached_bytes(remote: &RemoteFile, map: Option<&PageMap>, start: u64, end: u64) -> Result<Vec<u8>> {
+    let Some(map) = map else { return remote.cache().get(start, end) };
+    let mut out = vec![0u8; (end - start) as usize];
+    for (at, bytes, from) in map.pieces(start, end - start) {
+        if let Some(from) = from {
+            let got = remote.cache().get(from, from + bytes)?;
+            out[(at - start) as usize..(at - start + bytes) as usize].copy_from_slice(&got);
+        }
+    }
+    Ok(out)
+}
+
+/// [`RemoteFile::fetch_runs`] of logical page runs: the stored pages are fetched, and `got` is
+/// called with logical pages (pages left out are zeros, which the caller's buffers already hold).
+fn fetch_logical(
+    remote: &RemoteFile,
+    map: Option<&PageMap>,
+    runs: &[(u64, u64)],
+    mut got: impl FnMut(u64, &[u8]) -> Result<()>,
+) -> Result<()> {
+    let Some(map) = map else { return remote.fetch_runs(runs, got) };
+    remote.fetch_runs(&map.physical_runs(runs), |page, bytes| {
+        // A physical run may cross from one stored run to the next: split where the logical
+        // pages stop being consecutive.
+        let (mut page, mut bytes) = (page, bytes);
+        while !bytes.is_empty() {
+            let Some(logical) = map.logical(page) else {
+                // The page map's own pages: not part of the file as read.
+                let skip = (PAGE_BYTES as usize).min(bytes.len());
+                (page, bytes) = (page + 1, &bytes[skip..]);
+                continue;
+            };
+            let mut pages = 1;
+            while (pages as usize) * (PAGE_BYTES as usize) < bytes.len()
+                && map.logical(page + pages) == Some(logical + pages)
+            {
+                pages += 1;
+            }
+            let take = ((pages * PAGE_BYTES) as usize).min(bytes.len());
+            got(logical, &bytes[..take])?;
+            (page, bytes) = (page + pages, &bytes[take..]);
+        }
+        Ok(())
+    })
+}
+
 /// Records from their file bytes (a whole number of records).
 fn decode(bytes: &[u8]) -> Box<[Record]> {
     bytes.chunks_exact(RECORD_BYTES as usize).map(bytemuck::pod_read_unaligned::<Record>).collect()
@@ -542,7 +601,7 @@ fn fetcher(
                 _ => runs.push((p, q)),
             }
         }
-        let result = remote.fetch_runs(&runs, |page, bytes| {
+        let result = fetch_logical(remote, terrain.page_map(), &runs, |page, bytes| {
             let (lo, hi) = (page * PAGE_BYTES, page * PAGE_BYTES + bytes.len() as u64);
             let first_block = lo.saturating_sub(h.payload_offset) / BLOCK_BYTES;
             for (&b, records) in staged.range_mut(first_block..) {

@@ -115,7 +115,8 @@ fn run<L: Layout, M: ErrorMetric>(
     let check = report.check.then(|| {
         check_strip(grid, &strip, |x, y| view.is_active(x, y, grid.level(x, y), records[layout.index(x, y) as usize]))
     });
-    let minimal = report.compare_minimal.then(|| minimal_mesh(layout, records, view, &strip));
+    let minimal =
+        report.compare_minimal.then(|| minimal_mesh(layout, &terrain.header().stored(), records, view, &strip));
     Ok((
         RefineReport {
             file: terrain.path().display().to_string(),
