@@ -85,6 +85,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         if i.layout == "tiled" { format!(" (tile {})", i.layout_param) } else { String::new() }
     );
     println!("records       {} for {} vertices (waste {:.1}%)", i.records, i.vertices, 100.0 * i.waste_ratio);
+    if i.stored_pages < i.payload_pages || i.stored_vertices < i.vertices {
+        println!(
+            "stored        {} vertices (the data and their ancestors), {} of {} payload pages; the padding is not stored",
+            i.stored_vertices, i.stored_pages, i.payload_pages
+        );
+    }
     println!("heights       {:.2} .. {:.2} m (source x {} + {})", i.z_min, i.z_max, i.z_scale, i.z_offset);
     match (i.nodata_filled, i.void_mask) {
         (0, _) => println!("nodata        none"),

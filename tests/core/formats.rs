@@ -52,6 +52,7 @@ fn terrain_header() -> Header {
         }),
         // The page after the payload (4096 + 109 × 12 bytes).
         void_mask_offset: 8192,
+        page_map_pages: 0,
         payload_checksum: 0x0123_4567_89ab_cdef,
     }
 }
@@ -68,7 +69,8 @@ const TERRAIN_GOLDEN_V1: &str = concat!(
     "00000000000000000000000000000000efcdab8967452301d34f9e2cc2e27cb5",
 );
 
-const TERRAIN_GOLDEN: &str = concat!(
+/// The same header as version 2 wrote it (every page stored): still read.
+const TERRAIN_GOLDEN_V2: &str = concat!(
     "8952454c4945460a02000000000100000200000000000000010000000c000000",
     "0300000006000000090000000200000000000000000000000700000009000000",
     "00000000000000006d0000000000000051000000000000000010000000000000",
@@ -193,6 +195,18 @@ fn corrupt_field<F: Format + std::fmt::Debug>(name: &str, edit: impl Fn(&mut Hea
     assert!(e.starts_with(&format!("{name}: corrupt {}: ", F::KIND.name())) && e.contains(want), "{e}");
 }
 
+/// Version 3 without stored pages (a file written before stored pages, relabelled, reads the same).
+const TERRAIN_GOLDEN: &str = concat!(
+    "8952454c4945460a03000000000100000200000000000000010000000c000000",
+    "0300000006000000090000000200000000000000000000000700000009000000",
+    "00000000000000006d0000000000000051000000000000000010000000000000",
+    "1c0500000000000000000000000039400000000000803e40000000000000f03f",
+    "000000000000000000000000000029c00000000000308b400300000000000000",
+    "0000000000c04740dfbc9a785634323fdfbc9a785634323f0808000001002923",
+    "601600002a2301000000000020d6434100000080804f32410000000000003940",
+    "0000000000803e400020000000000000efcdab89674523010efe4d46657e7320",
+);
+
 #[test]
 fn terrain_header_bytes_are_frozen_and_checked() {
     assert_eq!(hex(&terrain_header().encode().0), TERRAIN_GOLDEN);
@@ -203,6 +217,24 @@ fn terrain_header_bytes_are_frozen_and_checked() {
     corrupt_field::<Header>("golden.relief", |h| h.put_f64(216, 0.0), "CRS placement");
     corrupt_field::<Header>("golden.relief", |h| h.put_f64(200, f64::NAN), "CRS placement");
     corrupt_field::<Header>("golden.relief", |h| h.put_u64(232, 4096), "void mask offset 4096");
+    // Stored pages (flag 4) need a page map; a page map needs the flag.
+    corrupt_field::<Header>(
+        "golden.relief",
+        |h| h.put_u32(44, 2 | 4),
+        "stored pages (flag 4) need version 3, a page map",
+    );
+    corrupt_field::<Header>("golden.relief", |h| h.put_u32(68, 3), "3 page map pages without stored pages");
+}
+
+#[test]
+fn version_2_terrain_headers_still_open() {
+    let bytes: Vec<u8> = (0..TERRAIN_GOLDEN_V2.len() / 2)
+        .map(|k| u8::from_str_radix(&TERRAIN_GOLDEN_V2[2 * k..2 * k + 2], 16).unwrap())
+        .collect();
+    let h: Header = decode_header(Path::new("v2.relief"), &bytes, file_len(FileKind::Terrain)).unwrap();
+    assert_eq!(h, Header { version: 2, ..terrain_header() });
+    assert!(!h.stores_pages());
+    assert_eq!(hex(&h.encode().0), TERRAIN_GOLDEN_V2);
 }
 
 #[test]

@@ -42,7 +42,7 @@ fn settle(cache: &mut HeightCache, t: &TerrainFile) -> usize {
             for j in 0..side {
                 for i in 0..side {
                     let (x, y) = grid.texel_post(key, i, j);
-                    assert_eq!(heights[(j * side + i) as usize], t.record_at(x, y).unwrap().z);
+                    assert_eq!(heights[(j * side + i) as usize], t.height_at(x, y).unwrap());
                 }
             }
         }

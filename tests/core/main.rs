@@ -37,4 +37,5 @@ mod backends;
 mod dem_readers;
 mod formats;
 mod height_cache;
+mod non_square;
 mod remote;

@@ -795,6 +795,7 @@ mod tests {
             source_spacing_deg: [f64::NAN, f64::NAN],
             georef: None,
             void_mask_offset: 0,
+            page_map_pages: 0,
             payload_checksum: 0x0123_4567_89ab_cdef,
         }
     }

@@ -51,6 +51,13 @@ pub struct Info {
     /// The source's CRS and the data's place in it, where the source said.
     pub crs: Option<CrsInfo>,
     pub file_bytes: u64,
+    /// Vertices with a record (the data posts and their ancestors; the rest of the grid is
+    /// padding that is not stored).
+    pub stored_vertices: u64,
+    /// Payload pages (4 KiB) in the file, and of the payload as read; equal where every page is
+    /// stored (files before version 3).
+    pub stored_pages: u64,
+    pub payload_pages: u64,
     pub payload_checksum: String,
 }
 
@@ -141,6 +148,13 @@ pub fn info(file: &TerrainFile) -> Info {
         geographic,
         crs: h.georef.as_ref().map(|g| CrsInfo::new(g, h.valid_window)),
         file_bytes: file.stored_bytes(),
+        stored_vertices: h.stored().count(),
+        payload_pages: h.payload_bytes.div_ceil(4096),
+        stored_pages: file.page_map().map_or(h.payload_bytes.div_ceil(4096), |m| {
+            // Less the header page and the void mask's pages.
+            let mask = if h.void_mask_offset == 0 { 0 } else { (8 + h.void_mask_bits_bytes()).div_ceil(4096) };
+            m.stored_pages() - 1 - mask
+        }),
         payload_checksum: format!("{:016x}", h.payload_checksum),
     }
 }
