@@ -223,7 +223,11 @@ fn local_copy(location: &Path, cache_dir: &Path, progress: &Progress) -> Result<
         return Ok(copy);
     }
     std::fs::create_dir_all(cache_dir).map_err(|e| Error::io(cache_dir, e))?;
-    let source = t.pager().source();
+    // The bytes as stored (a file with pages left out is copied as it is, page map and all).
+    let source: &dyn crate::pager::source::Source = match t.remote() {
+        Some(r) => r,
+        None => t.pager().source(),
+    };
     let len = source.len();
     let chunk = t.remote().map_or(4 << 20, |r| r.options().max_request).max(4096);
     let bar = progress.bar("download", len, "bytes");

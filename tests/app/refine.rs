@@ -159,7 +159,8 @@ fn geomorphing_blends_new_vertices_in_from_their_edge_midpoints() {
     let mut rng = Rng(11);
     let (mut before, mut after, mut plain) = (Strip::new(), Strip::new(), Strip::new());
     let mut appeared = 0;
-    for k in 0..100 {
+    // 160 views: the padding is not stored, so vertices appear only over the DEM itself.
+    for k in 0..160 {
         let camera = random_camera(&mut rng, file);
         let options = RefineOptions {
             tolerance_px: 1.0,

@@ -63,7 +63,9 @@ fn a_headless_flight_over_a_served_terrain_never_waits_and_ends_on_the_local_str
     assert_eq!(t["final_triangles"], h["final_triangles"]);
     assert!(h["settle_updates"].is_null() && t["settle_updates"].as_u64().unwrap() >= 1);
     assert_eq!(h["requests"], 0);
-    assert!(t["requests"].as_u64().unwrap() > 1 && t["net_bytes"].as_u64().unwrap() > 0);
+    // At least one request after the opening one (the file, 2.3 MB without its padding, is barely
+    // larger than the opening range).
+    assert!(t["requests"].as_u64().unwrap() >= 1 && t["net_bytes"].as_u64().unwrap() > 1 << 20, "{t}");
     // The first frame is drawn from the opening request alone: it did not wait.
     let first = &there["frames"][0];
     assert_eq!((first["coarse"].as_bool(), first["round_trips"].as_u64()), (Some(true), Some(1)), "{first}");

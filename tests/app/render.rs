@@ -129,7 +129,7 @@ fn gpu_shading_matches_the_cpu_reference_across_tiles() {
     let h = t.header();
     let params = ShadeParams::for_terrain(h.spacing_m, t.grid().size(), h.z_min, h.z_max);
     let last = t.grid().max_coord() as i32;
-    let height = |x: i32, y: i32| t.record_at(x.clamp(0, last) as u32, y.clamp(0, last) as u32).unwrap().z as f64;
+    let height = |x: i32, y: i32| t.height_at(x.clamp(0, last) as u32, y.clamp(0, last) as u32).unwrap() as f64;
     let (mut covered, mut worst_h, mut worst_n, mut worst_c) = (0, 0f64, 0f64, 0f64);
     for k in 0..pos.len() {
         if normal[k][3] != 1.0 {
@@ -155,7 +155,7 @@ fn gpu_shading_matches_the_cpu_reference_across_tiles() {
 }
 
 /// The real nodata DEM (hugo, 27% void): its void posts are not drawn by default, drawn as water
-/// at 0 m with `sea-level`, and drawn as their filled heights with `filled`. Which post owns a
+/// at their filled heights with `sea-level`, and drawn as their filled heights with `filled`. Which post owns a
 /// fragment is the nearest one, as in the shader.
 #[test]
 fn nodata_posts_are_drawn_as_asked() {
