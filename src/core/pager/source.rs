@@ -3,7 +3,8 @@
 //! readers may borrow the bytes in place) and [`ReadFile`] (positioned reads, `pread`). Every
 //! relief file is opened through [`open`], so this is also the one place relief maps a file:
 //! terrain, VDT, meta-node and page files all go through [`MappedFile::open`], and the safety
-//! argument is made once.
+//! argument is made once (a terrain file stored with pages left out is mapped again, run by run,
+//! by [`super::sparse`], under the same argument).
 
 use std::fs::File;
 use std::os::fd::AsRawFd;
