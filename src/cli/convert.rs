@@ -103,7 +103,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         eprintln!("relief: warning: {}: post spacing {} (--spacing)", input.display(), r.spacing_source);
     }
     println!(
-        "{}{} -> {}: {}x{} {} padded to {}², layout {}, {} records, {:.2} s ({:.1} M vertices/s){}",
+        "{}{} -> {}: {}x{} {} in a {}² grid, layout {}, {} vertices stored ({:.1} MiB, {:.2}x the posts' 12 bytes), {:.2} s ({:.1} M vertices/s){}",
         input.display(),
         if a.inputs.len() > 1 { format!(" (and {} more)", a.inputs.len() - 1) } else { String::new() },
         a.output.display(),
@@ -112,7 +112,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         r.format,
         r.grid_size,
         r.layout,
-        r.records,
+        r.stored_vertices,
+        r.file_bytes as f64 / (1u64 << 20) as f64,
+        r.file_bytes as f64 / (r.source_width as f64 * r.source_height as f64 * 12.0),
         r.seconds,
         r.vertices_per_s / 1e6,
         if r.nodata_filled > 0 { format!(", {} nodata samples filled", r.nodata_filled) } else { String::new() }
