@@ -135,7 +135,8 @@ fn a_damaged_page_map_is_refused_in_one_line() {
     let out = dir.path().join("etopo20.relief");
     convert(&common::dem("etopo20_world.tif"), &out, &ConvertOptions::new(LayoutKind::Hz)).unwrap();
     let good = std::fs::read(&out).unwrap();
-    let cases: [(&str, Box<dyn Fn(&mut Vec<u8>)>, &str); 3] = [
+    type Damage = Box<dyn Fn(&mut Vec<u8>)>;
+    let cases: [(&str, Damage, &str); 3] = [
         ("map.relief", Box::new(|b: &mut Vec<u8>| b[4096 + 20] ^= 1), "page map checksum"),
         (
             "count.relief",

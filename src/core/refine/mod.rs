@@ -394,7 +394,8 @@ impl<M: ErrorMetric> View<M> {
             return self.fast.test::<CULL>(x, y, level, rec, mask);
         }
         // A null record (error and radius 0) is never active, whatever the slack (as in f32).
-        if !(self.lod.kappa * rec.error as f64 + rec.radius as f64 > 0.0) {
+        let own = self.lod.kappa * rec.error as f64 + rec.radius as f64;
+        if own.is_nan() || own <= 0.0 {
             return Test::Inactive;
         }
         let rel = self.position(x, y, rec.z) - self.lod.eye;
