@@ -353,6 +353,13 @@ fn lossy_compressed_dems_need_allow_lossy() {
         let args = ["-co", "COMPRESS=LERC_DEFLATE", "-co", "MAX_Z_ERROR=0.01"];
         gdal("gdal_translate", &args, &dem("lidar_1m_f32.tif"), &lidar);
         cases.push((lidar, "LERC compression with a maximum error of 0.01 is lossy".into()));
+        // A VRT is as lossy as its sources: the JPEG tile behind it is named.
+        let vrt = dir.path().join("over_jpeg.vrt");
+        let jpeg = &cases[0].0;
+        let o = Command::new("gdalbuildvrt").arg("-q").arg(&vrt).arg(jpeg).output().expect("gdalbuildvrt");
+        assert!(o.status.success(), "gdalbuildvrt: {}", stderr_of(&o));
+        let what = format!("its source {}: JPEG compression is lossy", jpeg.display());
+        cases.push((vrt, what));
     }
     for (file, what) in cases {
         let out = file.with_extension("relief");

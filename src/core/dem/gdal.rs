@@ -91,15 +91,63 @@ fn lossy_compression(dataset: &Dataset) -> Option<String> {
     }
 }
 
+/// The files GDAL reads for `dataset` (itself, and a VRT's sources).
+fn source_files(dataset: &Dataset) -> Vec<PathBuf> {
+    use std::os::unix::ffi::OsStrExt;
+    // SAFETY: GDALGetFileList returns null or a null-terminated list of NUL-terminated strings
+    // that the caller owns; each is copied before the list is freed with CSLDestroy.
+    unsafe {
+        let list = gdal_sys::GDALGetFileList(dataset.c_dataset());
+        if list.is_null() {
+            return Vec::new();
+        }
+        let mut files = Vec::new();
+        let mut k = 0;
+        while !(*list.add(k)).is_null() {
+            let name = std::ffi::CStr::from_ptr(*list.add(k));
+            files.push(PathBuf::from(std::ffi::OsStr::from_bytes(name.to_bytes())));
+            k += 1;
+        }
+        gdal_sys::CSLDestroy(list);
+        files
+    }
+}
+
+/// Why a source file of a dataset is lossy, if it is: a TIFF by the native check (the codec, LERC's
+/// stated error, WebP's mode), anything else by what GDAL reports. A source that does not open
+/// is left to the read to report.
+fn lossy_source(source: &Path) -> Option<String> {
+    let mut magic = [0u8; 4];
+    let is_tiff = std::fs::File::open(source)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
+        .is_ok_and(|()| matches!(&magic, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+"));
+    if is_tiff {
+        return match super::geotiff::open(source, false) {
+            Err(Error::Lossy { what, .. }) => Some(what),
+            _ => None,
+        };
+    }
+    open_dataset(source).ok().and_then(|d| lossy_compression(&d))
+}
+
 /// Opens any raster GDAL reads: band 1, georeferenced from the geotransform and the CRS.
 pub(super) fn open(path: &Path, allow_lossy: bool) -> Result<Box<dyn DemSource>> {
     let dataset = open_dataset(path)?;
     if dataset.raster_count() == 0 {
         return Err(Error::bad_dem(path, "GDAL finds no raster band in it"));
     }
-    if let Some(what) = lossy_compression(&dataset) {
-        if !allow_lossy {
+    if !allow_lossy {
+        if let Some(what) = lossy_compression(&dataset) {
             return Err(Error::Lossy { path: path.to_path_buf(), what });
+        }
+        // A VRT (or any dataset over other files) is as lossy as its sources.
+        for source in source_files(&dataset).into_iter().filter(|f| f.as_path() != path) {
+            if let Some(what) = lossy_source(&source) {
+                return Err(Error::Lossy {
+                    path: path.to_path_buf(),
+                    what: format!("its source {}: {what}", source.display()),
+                });
+            }
         }
     }
     let (w, h) = dataset.raster_size();
