@@ -31,6 +31,9 @@ struct Frame {
     // Nodata: (style: 0 drawn as the filled heights, 1 not drawn, 2 shaded as water; 1 when the
     // void mask below is the file's; 0; 0).
     nodata: vec4<u32>,
+    // The look (src/render/shade.rs, `Look`): (vertical exaggeration, ramp: 0 hypsometric,
+    // 1 viridis, 2 grey; 0; 0).
+    looks: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> frame: Frame;
@@ -111,7 +114,11 @@ struct VertexOut {
 };
 
 fn vertex_at(grid: vec2<u32>, z_m: f32, towards_eye: f32) -> VertexOut {
-    let world = vec3<f32>(f32(grid.x) * frame.world_from_grid.x, f32(grid.y) * frame.world_from_grid.y, z_m);
+    let world = vec3<f32>(
+        f32(grid.x) * frame.world_from_grid.x,
+        f32(grid.y) * frame.world_from_grid.y,
+        z_m * frame.looks.x,
+    );
     // Subtract in f32 before projecting: keeps precision near the eye on large terrains.
     let rel = (world - frame.eye_in_world.xyz) * towards_eye;
     var out: VertexOut;
@@ -153,8 +160,9 @@ fn post_normal(src: Src, x: i32, y: i32) -> vec3<f32> {
     let y0 = max(y - 1, 0);
     let y1 = min(y + 1, last);
     let step = f32(1u << src.level);
-    let dz_dx = (post_height(src, x1, y) - post_height(src, x0, y)) / (f32(x1 - x0) * step * frame.world_from_grid.x);
-    let dz_dy = (post_height(src, x, y1) - post_height(src, x, y0)) / (f32(y1 - y0) * step * frame.world_from_grid.y);
+    // Of the exaggerated surface: slopes scale with the heights.
+    let dz_dx = frame.looks.x * (post_height(src, x1, y) - post_height(src, x0, y)) / (f32(x1 - x0) * step * frame.world_from_grid.x);
+    let dz_dy = frame.looks.x * (post_height(src, x, y1) - post_height(src, x, y0)) / (f32(y1 - y0) * step * frame.world_from_grid.y);
     return normalize(vec3<f32>(-dz_dx, -dz_dy, 1.0));
 }
 
@@ -247,8 +255,33 @@ fn surface(grid: vec2<f32>) -> Surface {
     return s;
 }
 
-// Hypsometric tints for land (low to high) and water (shallow to deep), linear RGB.
+// Viridis at 9 stops, linear RGB (the CPU reference's `VIRIDIS`).
+fn viridis(t: f32) -> vec3<f32> {
+    var stops = array<vec3<f32>, 9>(
+        vec3<f32>(0.057805, 0.000304, 0.088656),
+        vec3<f32>(0.064803, 0.021219, 0.187821),
+        vec3<f32>(0.048172, 0.066626, 0.250158),
+        vec3<f32>(0.030713, 0.138432, 0.270498),
+        vec3<f32>(0.019382, 0.223228, 0.270498),
+        vec3<f32>(0.013702, 0.341914, 0.250158),
+        vec3<f32>(0.035601, 0.473531, 0.191202),
+        vec3<f32>(0.155926, 0.617207, 0.097587),
+        vec3<f32>(0.982251, 0.799103, 0.018500),
+    );
+    let k = min(u32(floor(t * 8.0)), 7u);
+    return mix(stops[k], stops[k + 1u], t * 8.0 - f32(k));
+}
+
+// The tint of a height: hypsometric (land low to high, water shallow to deep), viridis over the
+// whole range, or plain grey; linear RGB.
 fn ramp(z_m: f32) -> vec3<f32> {
+    let kind = u32(frame.looks.y);
+    if (kind == 2u) {
+        return vec3<f32>(0.8);
+    }
+    if (kind == 1u) {
+        return viridis(clamp((z_m - frame.z_min) / max(frame.z_max - frame.z_min, 1.0), 0.0, 1.0));
+    }
     if (z_m < 0.0) {
         let t = clamp(z_m / min(frame.z_min, -1.0), 0.0, 1.0);
         return mix(vec3<f32>(0.30, 0.55, 0.75), vec3<f32>(0.02, 0.07, 0.25), t);

@@ -69,6 +69,19 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         }
         window.start = window.start.map(|(eye, look)| (local(eye), local(look)));
     }
+    // Exaggerated: the path and the start view scale with the scene's heights.
+    let x = renderer.look.z_exaggeration;
+    if x != 1.0 {
+        if let Some(f) = flight.as_mut() {
+            for frame in &mut f.frames {
+                frame.eye[2] *= x;
+                frame.look[2] *= x;
+            }
+        }
+        window.start =
+            window.start.map(|(eye, look)| (eye * glam::DVec3::new(1.0, 1.0, x), look * glam::DVec3::new(1.0, 1.0, x)));
+    }
+    let refine = RefineOptions { z_exaggeration: x, ..refine };
     let Some(flight) = flight else {
         let options = WindowOptions {
             window,

@@ -136,6 +136,7 @@ impl RefineArgs {
             cull: !self.no_cull,
             morph_ratio: self.geomorph,
             heights: false,
+            z_exaggeration: 1.0,
         })
     }
 }
@@ -214,15 +215,38 @@ pub struct GpuArgs {
     /// filled in for the level-of-detail hierarchy (sea-level); or as those filled heights (filled)
     #[arg(long, value_name = "STYLE", value_enum, default_value_t = relief::render::NodataStyle::Void)]
     pub nodata_as: relief::render::NodataStyle,
+    /// Draw heights this many times as high (≥ 1; nothing in the file changes). Cameras and
+    /// paths scale with the scene: --eye, --look and path heights are the terrain's metres, and
+    /// the mesh is refined to stay within --tolerance in the exaggerated scene
+    #[arg(long, value_name = "X", default_value_t = 1.0, allow_negative_numbers = true)]
+    pub z_exaggeration: f64,
+    /// Colour ramp: hypsometric tints (water below 0 m), viridis (perceptually uniform, lowest
+    /// to highest point) or a plain grey hillshade
+    #[arg(long, value_enum, default_value_t = relief::render::Ramp::Hypsometric)]
+    pub ramp: relief::render::Ramp,
+    /// Sun direction, degrees clockwise from north (315: the north-west of cartography)
+    #[arg(long, value_name = "DEG", default_value_t = 315.0, allow_negative_numbers = true)]
+    pub sun_azimuth: f64,
+    /// Sun height above the horizon, degrees (0 to 90)
+    #[arg(long, value_name = "DEG", default_value_t = 45.0, allow_negative_numbers = true)]
+    pub sun_altitude: f64,
 }
 
 impl GpuArgs {
     pub fn options(&self) -> anyhow::Result<relief::render::RendererOptions> {
         let bytes = |flag: &str, s: &Option<String>| s.as_deref().map(|s| parse_bytes(flag, s)).transpose();
+        let look = relief::render::Look {
+            ramp: self.ramp,
+            sun_azimuth_deg: self.sun_azimuth,
+            sun_altitude_deg: self.sun_altitude,
+            z_exaggeration: self.z_exaggeration,
+        };
+        look.validate().map_err(anyhow::Error::msg)?;
         Ok(relief::render::RendererOptions {
             gpu_memory: bytes("--gpu-memory", &self.gpu_memory)?,
             upload_per_frame: bytes("--gpu-upload", &self.gpu_upload)?,
             nodata: self.nodata_as,
+            look,
             ..Default::default()
         })
     }

@@ -35,6 +35,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     check_output_file("--out", &a.out)?;
     let f = Arc::new(TerrainFile::open(&a.file)?);
     let (camera, options) = a.view.resolve(&f)?;
+    // Refined and drawn in the exaggerated scene.
+    let camera = renderer.look.scene_camera(&camera);
+    let options = relief::refine::RefineOptions { z_exaggeration: renderer.look.z_exaggeration, ..options };
     let gpu = Gpu::headless()?;
     let style = DrawStyle { wireframe: a.wireframe };
     let (image, r) = render_still(

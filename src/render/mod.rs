@@ -18,4 +18,5 @@ pub use gpu::Gpu;
 pub use mesh::{MeshRenderer, MeshStyle, MeshView};
 pub use offscreen::Offscreen;
 pub use present::{render_still, save_png, MeshPresenter, MeshStage, StillOptions, StillReport, TerrainPresenter};
+pub use shade::{Look, Ramp};
 pub use terrain::{DrawStyle, FrameView, NodataStyle, RendererOptions, TerrainRenderer};

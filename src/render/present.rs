@@ -96,7 +96,7 @@ impl Presenter for TerrainPresenter<'_> {
         let strip_bytes = if changed { self.renderer.upload_strip(gpu, strip)? } else { 0 };
         let height_bytes = self.renderer.sync_heights(gpu, camera, changed.then_some(strip))?;
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        let view = FrameView::new(&self.terrain, *camera);
+        let view = FrameView::new(&self.terrain, *camera, self.renderer.shade_params().z_exaggeration);
         let t = &self.target;
         let uniform_bytes = self.renderer.encode(gpu, &mut encoder, &t.colour_view, &t.depth_view, &view, self.style);
         gpu.queue.submit([encoder.finish()]);

@@ -20,7 +20,7 @@ use crate::render::height_cache::{GpuHeightCache, DEFAULT_GPU_MEMORY, DEFAULT_UP
 use crate::render::heights::{GpuHeights, HeightTiling};
 use crate::render::offscreen::{depth_clear, frame_pass};
 use crate::render::pipeline::{build_pipeline, depth_state, uniform_entry, PipelineSpec};
-use crate::render::shade::ShadeParams;
+use crate::render::shade::{Look, ShadeParams};
 use crate::render::vertex_buffer::VertexBuffer;
 use crate::sys::progress::Progress;
 
@@ -59,6 +59,7 @@ pub struct FrameUniform {
     valid_window: [f32; 4],
     cache: [u32; 4],
     nodata: [u32; 4],
+    looks: [f32; 4],
 }
 
 /// What the probe pass writes to its second target (the first always holds grid x, grid y,
@@ -89,9 +90,10 @@ pub struct FrameView {
 }
 
 impl FrameView {
-    /// `camera` with the near plane [`near_plane_m`] picks for it over `terrain`.
-    pub fn new(terrain: &TerrainFile, camera: Camera) -> FrameView {
-        FrameView { camera, near_m: near_plane_m(terrain, camera.eye_in_world) }
+    /// `camera` with the near plane [`near_plane_m`] picks for it over `terrain` drawn with
+    /// heights `z_exaggeration` times as high.
+    pub fn new(terrain: &TerrainFile, camera: Camera, z_exaggeration: f64) -> FrameView {
+        FrameView { camera, near_m: near_plane_m(terrain, camera.eye_in_world, z_exaggeration) }
     }
 }
 
@@ -132,6 +134,8 @@ pub struct RendererOptions {
     pub upload_per_frame: Option<u64>,
     /// The cache's tile side in cells (a power of two). Default [`DEFAULT_TILE_CELLS`].
     pub cache_tile_cells: Option<u32>,
+    /// Ramp, sun and vertical exaggeration.
+    pub look: Look,
 }
 
 /// Where the shaders read heights from.
@@ -250,7 +254,7 @@ impl TerrainRenderer {
             Heights::Cached { pool: Box::new(pool), terrain: terrain.clone(), tiling }
         };
         let h = terrain.header();
-        let shade = ShadeParams::for_terrain(h.spacing_m, posts, h.z_min, h.z_max);
+        let shade = ShadeParams::for_terrain(h.spacing_m, posts, h.z_min, h.z_max).with_look(&options.look);
 
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("terrain.wgsl"),
@@ -518,7 +522,13 @@ impl TerrainRenderer {
         let Heights::Cached { pool, terrain, .. } = &mut self.heights else { return Ok(0) };
         if let Some(strip) = new_strip {
             let heights = if strip.morph.len() == strip.vertices.len() { &strip.morph } else { &self.own_morph };
-            pool.want(&strip.vertices, heights, WantView::new(camera, terrain.header().spacing_m));
+            // In the scene scaled by 1 / exaggeration, where the heights are the file's (as the
+            // refinement sees it).
+            let x = self.shade.z_exaggeration;
+            let scaled =
+                Camera { eye_in_world: camera.eye_in_world / x, look_at_world: camera.look_at_world / x, ..*camera };
+            let [sx, sy] = terrain.header().spacing_m;
+            pool.want(&strip.vertices, heights, WantView::new(&scaled, [sx / x, sy / x]));
         }
         pool.sync(&gpu.queue)
     }
@@ -602,6 +612,7 @@ impl TerrainRenderer {
             valid_window: self.valid_window.map(|v| v as f32),
             cache,
             nodata: self.nodata,
+            looks: [s.z_exaggeration as f32, s.ramp.code() as f32, 0.0, 0.0],
         }
     }
 
@@ -714,17 +725,18 @@ impl TerrainRenderer {
 /// A near plane for an eye: a quarter of a lower bound on its distance to the terrain (so the
 /// ground is never clipped), between 5 cm and 1 km. Reversed-z f32 depth keeps precision to the
 /// horizon whatever this is.
-pub fn near_plane_m(terrain: &TerrainFile, eye_in_world: DVec3) -> f64 {
+pub fn near_plane_m(terrain: &TerrainFile, eye_in_world: DVec3, z_exaggeration: f64) -> f64 {
     let h = terrain.header();
     let last = terrain.grid().max_coord();
     let (ex, ey) = (eye_in_world.x / h.spacing_m[0], eye_in_world.y / h.spacing_m[1]);
-    let above_all = eye_in_world.z - h.z_max;
+    let x = z_exaggeration;
+    let above_all = eye_in_world.z - h.z_max * x;
     let bound = if ex >= 0.0 && ey >= 0.0 && ex <= last as f64 && ey <= last as f64 {
         // Above the grid: height over the highest post of the cell around the eye.
         let (x0, y0) = ((ex.floor() as u32).min(last - 1), (ey.floor() as u32).min(last - 1));
         let ground = [(0, 0), (1, 0), (0, 1), (1, 1)]
             .iter()
-            .map(|&(dx, dy)| terrain.height_at(x0 + dx, y0 + dy).map_or(h.z_max, |z| z as f64))
+            .map(|&(dx, dy)| terrain.height_at(x0 + dx, y0 + dy).map_or(h.z_max, |z| z as f64) * x)
             .fold(f64::MIN, f64::max);
         (eye_in_world.z - ground).max(above_all)
     } else {

@@ -165,7 +165,7 @@ impl Scene for TerrainScene {
         camera: &Camera,
     ) {
         if let Some(d) = &self.drawn {
-            let view = FrameView::new(&self.terrain, *camera);
+            let view = FrameView::new(&self.terrain, *camera, d.renderer.shade_params().z_exaggeration);
             d.renderer.encode(gpu, encoder, colour, depth, &view, DrawStyle { wireframe: self.wireframe });
         }
     }

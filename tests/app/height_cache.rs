@@ -40,6 +40,7 @@ const PAGED: RendererOptions = RendererOptions {
     upload_per_frame: Some(64_000),
     cache_tile_cells: Some(32),
     nodata: relief::render::NodataStyle::Void,
+    look: relief::render::Look::DEFAULT,
 };
 
 #[test]
@@ -143,7 +144,7 @@ fn probe_positions(gpu: &Gpu, r: &mut TerrainRenderer, t: &TerrainFile, strip: &
     let targets = ProbeTargets::new(gpu, cam.width_px, cam.height_px);
     let mut enc = gpu.device.create_command_encoder(&Default::default());
     let views = [&targets.views[0], &targets.views[1]];
-    r.encode_probe(gpu, &mut enc, views, &targets.depth_view, &FrameView::new(t, *cam), Probe::Normal);
+    r.encode_probe(gpu, &mut enc, views, &targets.depth_view, &FrameView::new(t, *cam, 1.0), Probe::Normal);
     gpu.queue.submit([enc.finish()]);
     targets.read(gpu, 0).unwrap()
 }

@@ -64,7 +64,14 @@ fn triangle_count_never_grows_with_tolerance_and_culling_only_removes() {
         let metric = if k % 2 == 0 { MetricKind::Isotropic } else { MetricKind::Projected };
         let mut previous: Option<(u64, Vec<(u32, u32)>)> = None;
         for tolerance_px in [0.25, 0.5, 1.0, 1.5, 2.0, 4.0, 8.0, 32.0] {
-            let mut o = RefineOptions { tolerance_px, metric, cull: true, morph_ratio: None, heights: false };
+            let mut o = RefineOptions {
+                tolerance_px,
+                metric,
+                cull: true,
+                morph_ratio: None,
+                heights: false,
+                z_exaggeration: 1.0,
+            };
             refiner.refine_file(file, &camera, &o, &mut culled).unwrap();
             o.cull = false;
             refiner.refine_file(file, &camera, &o, &mut full).unwrap();
@@ -168,6 +175,7 @@ fn geomorphing_blends_new_vertices_in_from_their_edge_midpoints() {
             cull: false,
             morph_ratio: Some(3.0),
             heights: false,
+            z_exaggeration: 1.0,
         };
         refiner.refine_file(file, &camera, &options, &mut before).unwrap();
         refiner.refine_file(file, &camera, &RefineOptions { morph_ratio: None, ..options }, &mut plain).unwrap();
@@ -232,6 +240,7 @@ fn nested_mesh_is_close_to_and_contains_the_minimal_mesh() {
             cull: false,
             morph_ratio: None,
             heights: false,
+            z_exaggeration: 1.0,
         };
         let (r, _) = refine_report(file, &camera, &options, &report).unwrap();
         let ratio = r.ratio_to_minimal.unwrap();

@@ -17,7 +17,7 @@ use relief::refine::{RefineOptions, Refiner, Strip};
 use relief::render::offscreen::ProbeTargets;
 use relief::render::shade::{self, ShadeParams};
 use relief::render::terrain::{Probe, FRAME_UNIFORM_BYTES, MORPH_BYTES, VERTEX_BYTES};
-use relief::render::{render_still, StillReport};
+use relief::render::{render_still, Look, Ramp, StillReport};
 use relief::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
 use relief::sys::progress::Progress;
 
@@ -88,70 +88,79 @@ fn every_wgsl_file_validates_with_naga() {
 fn gpu_shading_matches_the_cpu_reference_across_tiles() {
     let gpu = gpu();
     let t = terrain("zurich_25m_i16.tif");
-    let cam = camera([2000.0, -1500.0, 1500.0], [5000.0, 4500.0, 500.0], 256, 160);
-    let mut strip = Strip::new();
-    Refiner::new(1)
-        .unwrap()
-        .refine_file(&t, &cam, &RefineOptions { tolerance_px: 2.0, ..Default::default() }, &mut strip)
-        .unwrap();
-    let probe = |tile_posts: Option<u32>, what: Probe| {
-        let mut r = TerrainRenderer::new(
-            &gpu,
-            &t,
-            relief::render::offscreen::OFFSCREEN_FORMAT,
-            RendererOptions { tile_posts, ..Default::default() },
-            Progress::hidden(),
-        )
-        .unwrap();
-        r.upload_strip(&gpu, &strip).unwrap();
-        let targets = ProbeTargets::new(&gpu, cam.width_px, cam.height_px);
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
-        r.encode_probe(
-            &gpu,
-            &mut enc,
-            [&targets.views[0], &targets.views[1]],
-            &targets.depth_view,
-            &FrameView::new(&t, cam),
-            what,
-        );
-        gpu.queue.submit([enc.finish()]);
-        (r.tiling(), targets.read(&gpu, 0).unwrap(), targets.read(&gpu, 1).unwrap())
-    };
-    let (tiling, pos, normal) = probe(Some(64), Probe::Normal);
-    assert_eq!((tiling.tile_posts, tiling.layers()), (64, 81));
-    let (_, pos2, colour) = probe(Some(64), Probe::Colour);
-    let (one, pos1, normal1) = probe(None, Probe::Normal);
-    assert_eq!(one.layers(), 1);
-    assert_eq!(pos, pos1, "tiling changed the surface");
-    assert_eq!(normal, normal1, "tiling changed the normals");
-    assert_eq!(pos, pos2);
+    let plain = camera([2000.0, -1500.0, 1500.0], [5000.0, 4500.0, 500.0], 256, 160);
+    // The default look, then render-time looks: the perceptually uniform ramp on a scene three
+    // times as high under a low south-east sun, and the grey hillshade at 1.5 times.
+    let looks = [
+        Look::DEFAULT,
+        Look { ramp: Ramp::Viridis, z_exaggeration: 3.0, sun_azimuth_deg: 135.0, sun_altitude_deg: 20.0 },
+        Look { ramp: Ramp::Grey, z_exaggeration: 1.5, ..Look::DEFAULT },
+    ];
+    for (k, look) in looks.iter().enumerate() {
+        let cam = look.scene_camera(&plain);
+        let x = look.z_exaggeration;
+        let mut strip = Strip::new();
+        let refine = RefineOptions { tolerance_px: 2.0, z_exaggeration: x, ..Default::default() };
+        Refiner::new(1).unwrap().refine_file(&t, &cam, &refine, &mut strip).unwrap();
+        let probe = |tile_posts: Option<u32>, what: Probe| {
+            let mut r = TerrainRenderer::new(
+                &gpu,
+                &t,
+                relief::render::offscreen::OFFSCREEN_FORMAT,
+                RendererOptions { tile_posts, look: *look, ..Default::default() },
+                Progress::hidden(),
+            )
+            .unwrap();
+            r.upload_strip(&gpu, &strip).unwrap();
+            let targets = ProbeTargets::new(&gpu, cam.width_px, cam.height_px);
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            r.encode_probe(
+                &gpu,
+                &mut enc,
+                [&targets.views[0], &targets.views[1]],
+                &targets.depth_view,
+                &FrameView::new(&t, cam, x),
+                what,
+            );
+            gpu.queue.submit([enc.finish()]);
+            (r.tiling(), targets.read(&gpu, 0).unwrap(), targets.read(&gpu, 1).unwrap())
+        };
+        let (tiling, pos, normal) = probe(Some(64), Probe::Normal);
+        assert_eq!((tiling.tile_posts, tiling.layers()), (64, 81));
+        let (_, pos2, colour) = probe(Some(64), Probe::Colour);
+        let (one, pos1, normal1) = probe(None, Probe::Normal);
+        assert_eq!(one.layers(), 1);
+        assert_eq!(pos, pos1, "tiling changed the surface");
+        assert_eq!(normal, normal1, "tiling changed the normals");
+        assert_eq!(pos, pos2);
 
-    let h = t.header();
-    let params = ShadeParams::for_terrain(h.spacing_m, t.grid().size(), h.z_min, h.z_max);
-    let last = t.grid().max_coord() as i32;
-    let height = |x: i32, y: i32| t.height_at(x.clamp(0, last) as u32, y.clamp(0, last) as u32).unwrap() as f64;
-    let (mut covered, mut worst_h, mut worst_n, mut worst_c) = (0, 0f64, 0f64, 0f64);
-    for k in 0..pos.len() {
-        if normal[k][3] != 1.0 {
-            continue; // sky, or padding outside the DEM
+        let h = t.header();
+        let params = ShadeParams::for_terrain(h.spacing_m, t.grid().size(), h.z_min, h.z_max).with_look(look);
+        let last = t.grid().max_coord() as i32;
+        let height = |x: i32, y: i32| t.height_at(x.clamp(0, last) as u32, y.clamp(0, last) as u32).unwrap() as f64;
+        let (mut covered, mut worst_h, mut worst_n, mut worst_c) = (0, 0f64, 0f64, 0f64);
+        for k in 0..pos.len() {
+            if normal[k][3] != 1.0 {
+                continue; // sky, or padding outside the DEM
+            }
+            covered += 1;
+            let [gx, gy, h_gpu, mesh_z] = pos[k].map(|v| v as f64);
+            let s = shade::surface_at(&params, &height, [gx, gy]);
+            worst_h = worst_h.max((s.height_m - h_gpu).abs());
+            let n_gpu = DVec3::new(normal[k][0] as f64, normal[k][1] as f64, normal[k][2] as f64);
+            worst_n = worst_n.max((s.normal - n_gpu).length());
+            let rel = DVec3::new(gx * h.spacing_m[0], gy * h.spacing_m[1], mesh_z) - cam.eye_in_world;
+            let c = shade::shade(&params, s, rel);
+            let c_gpu = DVec3::new(colour[k][0] as f64, colour[k][1] as f64, colour[k][2] as f64);
+            worst_c = worst_c.max((c - c_gpu).abs().max_element());
         }
-        covered += 1;
-        let [gx, gy, h_gpu, mesh_z] = pos[k].map(|v| v as f64);
-        let s = shade::surface_at(&params, &height, [gx, gy]);
-        worst_h = worst_h.max((s.height_m - h_gpu).abs());
-        let n_gpu = DVec3::new(normal[k][0] as f64, normal[k][1] as f64, normal[k][2] as f64);
-        worst_n = worst_n.max((s.normal - n_gpu).length());
-        let rel = DVec3::new(gx * h.spacing_m[0], gy * h.spacing_m[1], mesh_z) - cam.eye_in_world;
-        let c = shade::shade(&params, s, rel);
-        let c_gpu = DVec3::new(colour[k][0] as f64, colour[k][1] as f64, colour[k][2] as f64);
-        worst_c = worst_c.max((c - c_gpu).abs().max_element());
+        assert!(covered > pos.len() / 3, "look {k}: terrain covers only {covered} of {} pixels", pos.len());
+        // f32 on the GPU against f64 here: heights of ~900 m interpolated in f32 are good to ~1e-4
+        // relative; normals and colours to a few 1e-4.
+        assert!(worst_h < 0.02, "look {k}: height differs by {worst_h} m");
+        assert!(worst_n < 2e-3, "look {k}: normal differs by {worst_n}");
+        assert!(worst_c < 2e-3, "look {k}: colour differs by {worst_c}");
     }
-    assert!(covered > pos.len() / 3, "terrain covers only {covered} of {} pixels", pos.len());
-    // f32 on the GPU against f64 here: heights of ~900 m interpolated in f32 are good to ~1e-4
-    // relative; normals and colours to a few 1e-4.
-    assert!(worst_h < 0.02, "height differs by {worst_h} m");
-    assert!(worst_n < 2e-3, "normal differs by {worst_n}");
-    assert!(worst_c < 2e-3, "colour differs by {worst_c}");
 }
 
 /// The real nodata DEM (hugo, 27% void): its void posts are not drawn by default, drawn as water
@@ -179,7 +188,7 @@ fn nodata_posts_are_drawn_as_asked() {
         let targets = ProbeTargets::new(&gpu, cam.width_px, cam.height_px);
         let mut enc = gpu.device.create_command_encoder(&Default::default());
         let views = [&targets.views[0], &targets.views[1]];
-        r.encode_probe(&gpu, &mut enc, views, &targets.depth_view, &FrameView::new(&t, cam), Probe::Normal);
+        r.encode_probe(&gpu, &mut enc, views, &targets.depth_view, &FrameView::new(&t, cam, 1.0), Probe::Normal);
         gpu.queue.submit([enc.finish()]);
         (targets.read(&gpu, 0).unwrap(), targets.read(&gpu, 1).unwrap())
     };
@@ -213,7 +222,8 @@ fn nodata_posts_are_drawn_as_asked() {
     assert!(sea_heights.iter().all(|&z| z == -0.5), "water is drawn as water");
 }
 
-/// A golden view: DEM, camera, tolerance, style.
+/// A golden view: DEM, camera (in the terrain's metres; it scales with an exaggerated scene),
+/// tolerance, style, look.
 struct Golden {
     name: &'static str,
     dem: &'static str,
@@ -222,9 +232,13 @@ struct Golden {
     tolerance_px: f64,
     wireframe: bool,
     geomorph: Option<f64>,
+    looks: Look,
 }
 
-const GOLDEN: [Golden; 5] = [
+const PLAIN: Look =
+    Look { ramp: Ramp::Hypsometric, sun_azimuth_deg: 315.0, sun_altitude_deg: 45.0, z_exaggeration: 1.0 };
+
+const GOLDEN: [Golden; 8] = [
     Golden {
         name: "zurich",
         dem: "zurich_25m_i16.tif",
@@ -233,6 +247,7 @@ const GOLDEN: [Golden; 5] = [
         tolerance_px: 1.0,
         wireframe: false,
         geomorph: None,
+        looks: PLAIN,
     },
     Golden {
         name: "zurich_wire_geomorph",
@@ -242,6 +257,7 @@ const GOLDEN: [Golden; 5] = [
         tolerance_px: 4.0,
         wireframe: true,
         geomorph: Some(2.0),
+        looks: PLAIN,
     },
     Golden {
         name: "fuji",
@@ -251,6 +267,7 @@ const GOLDEN: [Golden; 5] = [
         tolerance_px: 1.0,
         wireframe: false,
         geomorph: None,
+        looks: PLAIN,
     },
     Golden {
         name: "lidar",
@@ -260,6 +277,7 @@ const GOLDEN: [Golden; 5] = [
         tolerance_px: 1.0,
         wireframe: false,
         geomorph: None,
+        looks: PLAIN,
     },
     Golden {
         name: "etopo_bathymetry",
@@ -269,19 +287,58 @@ const GOLDEN: [Golden; 5] = [
         tolerance_px: 1.0,
         wireframe: false,
         geomorph: None,
+        looks: PLAIN,
+    },
+    // Render-time looks: exaggeration with the perceptually uniform ramp, a continental DEM
+    // exaggerated 40 times, and the grey hillshade under a low south-east sun.
+    Golden {
+        name: "zurich_x3_viridis",
+        dem: "zurich_25m_i16.tif",
+        eye: [2000.0, -1500.0, 1500.0],
+        look: [5000.0, 4500.0, 500.0],
+        tolerance_px: 1.0,
+        wireframe: false,
+        geomorph: None,
+        looks: Look { ramp: Ramp::Viridis, z_exaggeration: 3.0, ..PLAIN },
+    },
+    Golden {
+        name: "etopo_x40",
+        dem: "etopo20_world.tif",
+        eye: [12.0e6, -2.0e6, 1.0e5],
+        look: [12.0e6, 9.0e6, -7.5e4],
+        tolerance_px: 1.0,
+        wireframe: false,
+        geomorph: None,
+        looks: Look { z_exaggeration: 40.0, ..PLAIN },
+    },
+    Golden {
+        name: "lidar_grey_low_sun",
+        dem: "lidar_1m_f32.tif",
+        eye: [-60.0, -60.0, 470.0],
+        look: [250.0, 250.0, 385.0],
+        tolerance_px: 1.0,
+        wireframe: false,
+        geomorph: None,
+        looks: Look { ramp: Ramp::Grey, sun_azimuth_deg: 135.0, sun_altitude_deg: 20.0, ..PLAIN },
     },
 ];
 
 fn render_golden(g: &Golden, gpu: &Gpu) -> (image::RgbaImage, StillReport) {
     let t = terrain(g.dem);
-    let cam = camera(g.eye, g.look, 320, 200);
-    let options = RefineOptions { tolerance_px: g.tolerance_px, morph_ratio: g.geomorph, ..Default::default() };
+    let cam = g.looks.scene_camera(&camera(g.eye, g.look, 320, 200));
+    let options = RefineOptions {
+        tolerance_px: g.tolerance_px,
+        morph_ratio: g.geomorph,
+        z_exaggeration: g.looks.z_exaggeration,
+        ..Default::default()
+    };
+    let renderer = RendererOptions { look: g.looks, ..Default::default() };
     render_still(
         gpu,
         t,
         &cam,
         &options,
-        relief::render::StillOptions { style: DrawStyle { wireframe: g.wireframe }, ..Default::default() },
+        relief::render::StillOptions { style: DrawStyle { wireframe: g.wireframe }, renderer, ..Default::default() },
         Progress::hidden(),
     )
     .unwrap()

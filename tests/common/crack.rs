@@ -69,6 +69,8 @@ pub fn random_options(rng: &mut Rng) -> RefineOptions {
         cull: !rng.next().is_multiple_of(4),
         morph_ratio: None,
         heights: false,
+        // Now and then an exaggerated scene (refined at eye / x over posts x times closer).
+        z_exaggeration: if rng.next().is_multiple_of(3) { rng.range(1.0, 6.0) } else { 1.0 },
     }
 }
 

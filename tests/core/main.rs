@@ -35,6 +35,7 @@ mod common {
 
 mod backends;
 mod dem_readers;
+mod exaggeration;
 mod formats;
 mod height_cache;
 mod non_square;

@@ -169,6 +169,9 @@ pub struct RefineOptions {
     /// Without geomorphing, still give every strip vertex its exact height (morph data with blend
     /// 1), for a renderer that does not hold every height (the GPU height cache).
     pub heights: bool,
+    /// The scene's vertical exaggeration (≥ 1): the camera is in the exaggerated scene, where
+    /// every height is this many times as high, and the mesh is refined to stay within τ there.
+    pub z_exaggeration: f64,
 }
 
 impl Default for RefineOptions {
@@ -179,6 +182,7 @@ impl Default for RefineOptions {
             cull: true,
             morph_ratio: None,
             heights: false,
+            z_exaggeration: 1.0,
         }
     }
 }
@@ -346,6 +350,19 @@ impl<M: ErrorMetric> View<M> {
         extent_m: [f64; 2],
         z_range_m: [f64; 2],
     ) -> View<M> {
+        // Exaggeration x: the scene is (x, y, x·z). Scaled by 1/x it is (x/x, y/x, z) with the
+        // eye at eye/x, and a uniform scale changes no angle or screen-space error, so the
+        // refinement runs there on the file's own heights, errors and radii: posts x times closer
+        // (the radii, bounds of distances that only shrink, stay conservative for x ≥ 1).
+        let x = options.z_exaggeration;
+        let scaled;
+        let (camera, spacing_m, extent_m) = if x != 1.0 && x.is_finite() && x >= 1.0 {
+            scaled =
+                Camera { eye_in_world: camera.eye_in_world / x, look_at_world: camera.look_at_world / x, ..*camera };
+            (&scaled, [spacing_m[0] / x, spacing_m[1] / x], [extent_m[0] / x, extent_m[1] / x])
+        } else {
+            (camera, spacing_m, extent_m)
+        };
         let lod = Lod::new(camera, options.tolerance_px, metric);
         let ratio = options.morph_ratio.unwrap_or(1.0);
         let scale = largest_finite([
