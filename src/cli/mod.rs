@@ -321,6 +321,10 @@ pub struct FlyArgs {
     /// Window: close after this many frames (scripted runs).
     #[arg(long, value_name = "N", conflicts_with = "path")]
     pub exit_after_frames: Option<u64>,
+    /// Window: record the flight path from the first frame (R stops and saves it; closing the
+    /// window saves it too).
+    #[arg(long, conflicts_with = "path")]
+    pub record: bool,
     /// Headless: update only, no rendering (times the refinement, adaptation or fetch alone).
     #[arg(long, requires = "path")]
     pub no_render: bool,
@@ -397,6 +401,7 @@ impl FlyArgs {
             output_dir: self.output_dir.clone(),
             start: self.start()?,
             exit_after_frames: self.exit_after_frames,
+            record: self.record,
         })
     }
 }

@@ -533,6 +533,11 @@ impl TerrainRenderer {
         pool.sync(&gpu.queue)
     }
 
+    /// Draws with `look` from the next frame on (the caller refines with its exaggeration).
+    pub fn set_look(&mut self, look: &Look) {
+        self.shade = self.shade.with_look(look);
+    }
+
     pub fn shade_params(&self) -> &ShadeParams {
         &self.shade
     }

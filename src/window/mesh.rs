@@ -46,6 +46,10 @@ pub fn mesh_window(source: &mut dyn FrameSource, title: &str, options: MeshWindo
     super::run(scene, settings)
 }
 
+/// The labels of the mesh panel's controls (every glyph in the bundled font: see the test in
+/// `window/mod.rs`).
+pub(super) const CONTROL_LABELS: [&str; 3] = ["τ (px)", "wireframe (T)", "freeze adaptation (F)"];
+
 struct MeshScene<'a> {
     source: &'a mut dyn FrameSource,
     title: String,
@@ -128,8 +132,9 @@ impl Scene for MeshScene<'_> {
     }
 
     fn controls(&mut self, ui: &mut egui::Ui) {
-        ui.add(egui::Slider::new(&mut self.tolerance_px, 0.25..=32.0).logarithmic(true).text("τ (px)"));
-        ui.checkbox(&mut self.wireframe, "wireframe (T)");
-        ui.checkbox(&mut self.frozen, "freeze adaptation (F)");
+        let [tau, wire, freeze] = CONTROL_LABELS;
+        ui.add(egui::Slider::new(&mut self.tolerance_px, 0.25..=32.0).logarithmic(true).text(tau));
+        ui.checkbox(&mut self.wireframe, wire);
+        ui.checkbox(&mut self.frozen, freeze);
     }
 }

@@ -44,6 +44,8 @@ pub struct WindowSettings {
     pub start: Option<(DVec3, DVec3)>,
     /// Close after this many frames (scripted runs, smoke tests).
     pub exit_after_frames: Option<u64>,
+    /// Record the flight path from the first frame.
+    pub record: bool,
 }
 
 /// The error for a machine without a display, with what to do instead.
@@ -101,7 +103,22 @@ trait Scene {
     fn stats(&self) -> Vec<(&'static str, String)>;
     /// The scene's controls, below the figures.
     fn controls(&mut self, ui: &mut egui::Ui);
+    /// A factor the eye's height is to be scaled by now (the scene was exaggerated more or less),
+    /// once.
+    fn take_rescale(&mut self) -> Option<f64> {
+        None
+    }
+    /// A point of the scene as a recorded path keeps it (the terrain's metres, whatever the
+    /// exaggeration drawn).
+    fn path_point(&self, p: DVec3) -> DVec3 {
+        p
+    }
 }
+
+/// The panel's help lines.
+pub const HELP: [&str; 2] = ["drag: look · WASD/QE: move · wheel: speed", "F12/P: screenshot · R: record path"];
+/// Shown while recording (every glyph in the bundled font: see the test).
+pub const RECORDING: &str = "REC · recording the path (R: stop and save)";
 
 /// Opens a window on `scene` and runs it until it is closed.
 fn run<S: Scene>(scene: S, settings: WindowSettings) -> Result<()> {
@@ -109,9 +126,34 @@ fn run<S: Scene>(scene: S, settings: WindowSettings) -> Result<()> {
     let event_loop = EventLoop::new().map_err(|e| no_display(&display_error(&e.to_string())))?;
     let mut app = App { scene, settings, shell: None, error: None };
     event_loop.run_app(&mut app).map_err(|e| Error::Gpu(format!("window event loop: {e}")))?;
+    // Closed while recording (Esc, the window's close button, a signal, an error): the path so
+    // far is saved, and said so.
+    if let Some(s) = app.shell.as_mut() {
+        if let Some(frames) = s.recording.take().filter(|f| !f.is_empty()) {
+            eprintln!("relief: closed while recording; {}", save_path(frames, &app.settings));
+        }
+    }
     match app.error {
         Some(e) => Err(e),
         None => Ok(()),
+    }
+}
+
+/// Saves a recorded path beside the screenshots; what happened, in a line.
+fn save_path(frames: Vec<PathFrame>, o: &WindowSettings) -> String {
+    // Two recordings in one second keep both.
+    let stamp = timestamp();
+    let path = (1..)
+        .map(|k| match k {
+            1 => o.output_dir.join(format!("relief-path-{stamp}.json")),
+            k => o.output_dir.join(format!("relief-path-{stamp}-{k}.json")),
+        })
+        .find(|p| !p.exists())
+        .expect("a free name");
+    let n = frames.len();
+    match (FlightPath { frames }).save(&path) {
+        Ok(()) => format!("path: {} ({n} frames)", path.display()),
+        Err(e) => format!("saving the path failed: {e}"),
     }
 }
 
@@ -258,7 +300,7 @@ impl<S: Scene> App<S> {
             last_cursor: None,
             last_frame: Instant::now(),
             frame_ms_avg: 0.0,
-            recording: None,
+            recording: self.settings.record.then(Vec::new),
             message: String::new(),
             frames: 0,
         })
@@ -388,14 +430,7 @@ impl Shell {
                 "recording the flight path (R to stop)".into()
             }
             Some(frames) if frames.is_empty() => "recording stopped: no frames".into(),
-            Some(frames) => {
-                let path = o.output_dir.join(format!("relief-path-{}.json", timestamp()));
-                let n = frames.len();
-                match (FlightPath { frames }).save(&path) {
-                    Ok(()) => format!("path: {} ({n} frames)", path.display()),
-                    Err(e) => format!("saving the path failed: {e}"),
-                }
-            }
+            Some(frames) => save_path(frames, o),
         }
     }
 
@@ -404,10 +439,14 @@ impl Shell {
         let dt = (now - self.last_frame).as_secs_f64().min(0.25);
         self.last_frame = now;
         self.frame_ms_avg = if self.frame_ms_avg == 0.0 { dt * 1e3 } else { 0.9 * self.frame_ms_avg + 0.1 * dt * 1e3 };
+        if let Some(f) = scene.take_rescale() {
+            self.cam.eye_in_world.z *= f;
+        }
         self.fly(dt);
         let cam = self.camera(o)?;
         if let Some(rec) = &mut self.recording {
-            rec.push(PathFrame { eye: cam.eye_in_world.to_array(), look: cam.look_at_world.to_array() });
+            let (eye, look) = (scene.path_point(cam.eye_in_world), scene.path_point(cam.look_at_world));
+            rec.push(PathFrame { eye: eye.to_array(), look: look.to_array() });
         }
         scene.update(&self.gpu, &cam)?;
 
@@ -510,10 +549,11 @@ impl Shell {
         });
         ui.separator();
         scene.controls(ui);
-        ui.label("drag: look · WASD/QE: move · wheel: speed");
-        ui.label("F12/P: screenshot · R: record path");
+        for line in HELP {
+            ui.label(line);
+        }
         if self.recording.is_some() {
-            ui.colored_label(egui::Color32::RED, "● recording");
+            ui.colored_label(egui::Color32::RED, RECORDING);
         }
         if !self.message.is_empty() {
             ui.label(&self.message);
@@ -553,6 +593,30 @@ mod tests {
             assert!(c.right().dot(c.forward().cross(u)) > 0.0);
             let cam = c.camera(60.0, 64, 48).unwrap();
             assert!((cam.basis().0 - c.right()).length() < 1e-9, "{up:?}");
+        }
+    }
+
+    /// Every fixed string the panels show is drawn from the bundled fonts, no glyph missing (a
+    /// missing one draws as a box: the recording marker was "● recording", and egui's fonts have
+    /// no U+25CF).
+    #[test]
+    fn the_panels_text_has_every_glyph_in_the_bundled_font() {
+        let ctx = egui::Context::default();
+        // The fonts are loaded by the first frame.
+        let mut output = ctx.run_ui(egui::RawInput::default(), |_| {});
+        output.textures_delta.clear(); // nothing is drawn here
+        let texts: Vec<&str> = HELP
+            .iter()
+            .chain([RECORDING].iter())
+            .chain(terrain::CONTROL_LABELS.iter())
+            .chain(mesh::CONTROL_LABELS.iter())
+            .copied()
+            .collect();
+        for font in [egui::FontId::proportional(14.0), egui::FontId::monospace(14.0)] {
+            for t in &texts {
+                let missing: String = t.chars().filter(|&c| !ctx.fonts_mut(|f| f.has_glyph(&font, c))).collect();
+                assert!(missing.is_empty(), "{t:?}: {missing:?} not in the {:?} font", font.family);
+            }
         }
     }
 }

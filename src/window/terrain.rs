@@ -15,8 +15,9 @@ use crate::flight::frame::FrameSource;
 use crate::flight::terrain::TerrainSource;
 use crate::format::terrain::TerrainFile;
 use crate::refine::RefineOptions;
+use crate::render::shade::MAX_Z_EXAGGERATION;
 use crate::render::terrain::FRAME_UNIFORM_BYTES;
-use crate::render::{DrawStyle, FrameView, Gpu, RendererOptions, TerrainRenderer};
+use crate::render::{DrawStyle, FrameView, Gpu, Look, Ramp, RendererOptions, TerrainRenderer};
 use crate::sys::mem;
 use crate::sys::progress::Progress;
 
@@ -42,6 +43,9 @@ pub fn fly_window(terrain: Arc<TerrainFile>, options: WindowOptions) -> Result<(
         tolerance_px: options.refine.tolerance_px,
         cull: options.refine.cull,
         wireframe: options.wireframe,
+        look: options.renderer.look,
+        applied_look: options.renderer.look,
+        rescale: None,
         terrain,
         options,
         drawn: None,
@@ -83,21 +87,43 @@ struct TerrainScene {
     /// The camera the drawn strip was refined for (shown when frozen).
     refined_camera: Option<Camera>,
     stats: Stats,
+    /// The look the panel asks for, and the one drawn.
+    look: Look,
+    applied_look: Look,
+    /// The eye's height is to be scaled by this (the exaggeration changed).
+    rescale: Option<f64>,
 }
 
-/// Starts south-west of the DEM, above its highest point, looking at its centre.
-fn start_camera(terrain: &TerrainFile, start: Option<(DVec3, DVec3)>) -> FlyCamera {
+/// The labels of the terrain panel's controls (every glyph in the bundled font: see the test in
+/// `window/mod.rs`).
+pub(super) const CONTROL_LABELS: [&str; 11] = [
+    "τ (px)",
+    "cull to the view",
+    "wireframe (T)",
+    "freeze refinement (F)",
+    "vertical exaggeration ×",
+    "colour ramp",
+    "hypsometric",
+    "viridis",
+    "grey hillshade",
+    "sun azimuth (° from north)",
+    "sun altitude (°)",
+];
+
+/// Starts south-west of the DEM, above its highest point, looking at its centre (in the scene
+/// with heights `x` times as high).
+fn start_camera(terrain: &TerrainFile, start: Option<(DVec3, DVec3)>, x: f64) -> FlyCamera {
     let h = terrain.header();
     let [x0, y0, x1, y1] = h.valid_window;
     let centre = DVec3::new(
         0.5 * (x0 + x1 - 1) as f64 * h.spacing_m[0],
         0.5 * (y0 + y1 - 1) as f64 * h.spacing_m[1],
-        h.z_min.max(0.0),
+        h.z_min.max(0.0) * x,
     );
     let size_m = ((x1 - x0) as f64 * h.spacing_m[0]).hypot((y1 - y0) as f64 * h.spacing_m[1]);
     let (eye, look) = start.unwrap_or_else(|| {
         let eye = centre + DVec3::new(-0.45 * size_m, -0.45 * size_m, 0.0);
-        (DVec3::new(eye.x, eye.y, h.z_max + 0.15 * size_m), centre)
+        (DVec3::new(eye.x, eye.y, h.z_max * x + 0.15 * size_m), centre)
     });
     FlyCamera::looking(eye, look, size_m / 30.0, UpAxis::Z)
 }
@@ -114,7 +140,7 @@ impl Scene for TerrainScene {
         let source = TerrainSource::new(self.terrain.clone(), refine, o.threads, !o.sync)?;
         self.options.refine = refine;
         self.drawn = Some(Drawn { renderer, source });
-        Ok(start_camera(&self.terrain, start))
+        Ok(start_camera(&self.terrain, start, self.applied_look.z_exaggeration))
     }
 
     fn key(&mut self, code: KeyCode) {
@@ -136,6 +162,11 @@ impl Scene for TerrainScene {
             _ => Vec::new(),
         };
         d.renderer.set_overlay_lines(gpu, &outline);
+        if self.look != self.applied_look {
+            d.renderer.set_look(&self.look);
+            self.options.refine.z_exaggeration = self.look.z_exaggeration;
+            self.applied_look = self.look;
+        }
         if !self.frozen {
             d.source.set_options(RefineOptions { cull: self.cull, ..self.options.refine });
             let u = d.source.update(cam, self.tolerance_px)?;
@@ -210,10 +241,38 @@ impl Scene for TerrainScene {
     }
 
     fn controls(&mut self, ui: &mut egui::Ui) {
-        ui.add(egui::Slider::new(&mut self.tolerance_px, 0.25..=32.0).logarithmic(true).text("τ (px)"));
-        ui.checkbox(&mut self.cull, "cull to the view");
-        ui.checkbox(&mut self.wireframe, "wireframe (T)");
-        ui.checkbox(&mut self.frozen, "freeze refinement (F)");
+        let [tau, cull, wire, freeze, exaggeration, ramp, hyps, viridis, grey, azimuth, altitude] = CONTROL_LABELS;
+        ui.add(egui::Slider::new(&mut self.tolerance_px, 0.25..=32.0).logarithmic(true).text(tau));
+        ui.checkbox(&mut self.cull, cull);
+        ui.checkbox(&mut self.wireframe, wire);
+        ui.checkbox(&mut self.frozen, freeze);
+        let before = self.look.z_exaggeration;
+        let x = egui::Slider::new(&mut self.look.z_exaggeration, 1.0..=MAX_Z_EXAGGERATION.min(100.0)).logarithmic(true);
+        if ui.add(x.text(exaggeration)).changed() && before > 0.0 {
+            // The eye rises and sinks with the scene, so the view stays about the same.
+            self.rescale = Some(self.rescale.unwrap_or(1.0) * self.look.z_exaggeration / before);
+        }
+        egui::ComboBox::from_label(ramp)
+            .selected_text(match self.look.ramp {
+                Ramp::Hypsometric => hyps,
+                Ramp::Viridis => viridis,
+                Ramp::Grey => grey,
+            })
+            .show_ui(ui, |ui| {
+                ui.selectable_value(&mut self.look.ramp, Ramp::Hypsometric, hyps);
+                ui.selectable_value(&mut self.look.ramp, Ramp::Viridis, viridis);
+                ui.selectable_value(&mut self.look.ramp, Ramp::Grey, grey);
+            });
+        ui.add(egui::Slider::new(&mut self.look.sun_azimuth_deg, 0.0..=360.0).text(azimuth));
+        ui.add(egui::Slider::new(&mut self.look.sun_altitude_deg, 0.0..=90.0).text(altitude));
+    }
+
+    fn take_rescale(&mut self) -> Option<f64> {
+        self.rescale.take()
+    }
+
+    fn path_point(&self, p: DVec3) -> DVec3 {
+        DVec3::new(p.x, p.y, p.z / self.look.z_exaggeration)
     }
 }
 

@@ -195,3 +195,60 @@ fn fly_window_runs_with_the_height_cache() {
     let file = zurich(dir.path());
     window_session(&["fly".as_ref(), file.as_os_str(), "--gpu-memory".as_ref(), "600K".as_ref()]);
 }
+
+/// Closing the window while recording saves the path and says so (`--record` starts recording at
+/// the first frame; `--exit-after-frames` closes the window as Escape would); with an exaggerated
+/// scene the path keeps the terrain's metres, so it replays the same with the same exaggeration.
+#[test]
+fn closing_the_window_while_recording_saves_the_path() {
+    use std::process::Command;
+    if Command::new("xvfb-run").arg("--help").output().is_err() {
+        eprintln!("note: xvfb-run not installed; window test skipped");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let file = zurich(dir.path());
+    let out = dir.path().join("out");
+    std::fs::create_dir(&out).unwrap();
+    let rt = dir.path().join("rt");
+    std::fs::create_dir(&rt).unwrap();
+    std::fs::set_permissions(&rt, std::os::unix::fs::PermissionsExt::from_mode(0o700)).unwrap();
+    let mut attempt = 0u32;
+    let (o, e) = loop {
+        // A display of our own (see `common::window_session` on why).
+        let display = 600 + (std::process::id() % 300) + 41 * attempt;
+        let o = Command::new("xvfb-run")
+            .args(["-a", "-n", &display.to_string(), "-s", "-screen 0 800x600x24"])
+            .arg(env!("CARGO_BIN_EXE_relief"))
+            .args(["fly".as_ref(), file.as_os_str()])
+            .args(["--record", "--exit-after-frames", "12", "--width", "320", "--height", "200", "--quiet"])
+            .args(["--z-exaggeration", "2", "--output-dir"])
+            .arg(&out)
+            .env("XDG_RUNTIME_DIR", &rt)
+            .output()
+            .unwrap();
+        let e = stderr_of(&o);
+        attempt += 1;
+        if attempt < 3 && !o.status.success() && e.contains("connection to X server") {
+            continue;
+        }
+        break (o, e);
+    };
+    assert!(o.status.success(), "{e}");
+    let saved: Vec<PathBuf> = std::fs::read_dir(&out).unwrap().map(|d| d.unwrap().path()).collect();
+    assert_eq!(saved.len(), 1, "{saved:?}");
+    let want = format!("relief: closed while recording; path: {} (", saved[0].display());
+    assert!(e.contains(&want), "{e}");
+    let path = relief::flight::FlightPath::load(&saved[0]).unwrap();
+    assert!(path.frames.len() >= 10, "{} frames", path.frames.len());
+    // The start view (no key pressed: the eye stays), in the terrain's metres: above the highest
+    // point by 0.15 of the DEM's diagonal in the scene, so by half that in the terrain.
+    let t = TerrainFile::open(&file).unwrap();
+    let h = t.header();
+    let [_, _, x1, y1] = h.valid_window;
+    let diagonal = (x1 as f64 * h.spacing_m[0]).hypot(y1 as f64 * h.spacing_m[1]);
+    let want_z = h.z_max + 0.075 * diagonal;
+    for f in &path.frames {
+        assert!((f.eye[2] - want_z).abs() < 1e-6, "eye {:?}, want z {want_z}", f.eye);
+    }
+}
