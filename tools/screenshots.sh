@@ -41,3 +41,15 @@ xdotool mouseup 1
 sleep 2
 shot "$out/frozen_mesh_fuji.png"
 echo "wrote $out/fly_fuji.png $out/frozen_mesh_fuji.png"
+
+# 3. Render-time looks (headless `relief render`, no window): ETOPO20 as it is, exaggerated 40
+#    times, and exaggerated with the viridis ramp under a low western sun.
+$relief convert ../shared/data/dem/etopo20_world.tif "$work/etopo20.relief" --quiet >/dev/null
+view=(--eye 12000000,-2000000,100000 --look 12000000,9000000,-75000 --width 960 --height 600)
+# The same view unexaggerated: the camera 40 times as high, as the exaggerated scene puts it.
+$relief render "$work/etopo20.relief" --eye 12000000,-2000000,4000000 --look 12000000,9000000,-3000000 \
+  --width 960 --height 600 --out "$out/looks_etopo_x1.png" >/dev/null
+$relief render "$work/etopo20.relief" "${view[@]}" --z-exaggeration 40 --out "$out/looks_etopo_x40.png" >/dev/null
+$relief render "$work/etopo20.relief" "${view[@]}" --z-exaggeration 40 --ramp viridis --sun-azimuth 270 \
+  --sun-altitude 25 --out "$out/looks_etopo_x40_viridis.png" >/dev/null
+echo "wrote $out/looks_etopo_x1.png $out/looks_etopo_x40.png $out/looks_etopo_x40_viridis.png"

@@ -2,7 +2,7 @@
 //! the pipelines (terrain, geomorphed terrain, wireframe, sky, and the probe used by tests).
 //!
 //! Per refinement update only the strip is uploaded: 8 bytes per vertex (grid x, y as `u32`), plus
-//! 8 more with geomorphing (blend, morphed height). Per frame a 272-byte uniform follows the
+//! 8 more with geomorphing (blend, morphed height). Per frame a 288-byte uniform follows the
 //! camera. Positions are built in the vertex shader from the heights texture; the fragment shader
 //! shades from the full-resolution heights (CPU reference: `render::shade`).
 
