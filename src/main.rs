@@ -49,6 +49,12 @@ enum Command {
     /// only the strip (8 bytes per vertex, 16 with --geomorph). Without a GPU, Mesa's software
     /// Vulkan (lavapipe) renders it.
     Render(cli::render::Args),
+    /// Write a terrain's mesh for other tools: glTF (.glb/.gltf), PLY or OBJ.
+    ///
+    /// Either the mesh refined for a view (--eye, --look, --tolerance: what `render` draws) or the
+    /// view-independent mesh within --max-error metres of every DEM post. Positions in local metres
+    /// (or the CRS with --crs), normals, and texture coordinates over the DEM, north up.
+    Export(cli::export::Args),
     /// Compare index layouts by page faults along a flight (the terrain paper's experiment).
     ///
     /// INPUT is a DEM (converted once per layout into --cache-dir) or a terrain file (re-laid out
@@ -97,6 +103,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Refine(a) => cli::refine::run(a),
         Command::Fly(a) => cli::fly::run(a),
         Command::Render(a) => cli::render::run(a),
+        Command::Export(a) => cli::export::run(a),
         Command::Layouts(a) => cli::layouts::run(a),
         Command::Path { kind } => cli::path::run(kind),
         Command::Mesh { kind } => cli::mesh::run(kind),

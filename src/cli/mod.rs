@@ -21,6 +21,7 @@ use relief::refine::RefineOptions;
 use relief::sys::progress::Progress;
 
 pub mod convert;
+pub mod export;
 pub mod fly;
 pub mod info;
 pub mod layouts;

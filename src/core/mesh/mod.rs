@@ -20,6 +20,7 @@
 //! truncated data, index out of range, non-finite coordinate, no triangles) is an [`Error::BadMesh`]
 //! naming the file.
 
+pub mod export;
 mod obj;
 mod off;
 mod ply;
