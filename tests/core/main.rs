@@ -36,6 +36,7 @@ mod common {
 mod backends;
 mod dem_readers;
 mod exaggeration;
+mod export;
 mod formats;
 mod height_cache;
 mod non_square;

@@ -96,7 +96,11 @@ fn overlaps_data(t: [[u32; 2]; 3], w: u32, h: u32) -> bool {
 impl TerrainExport {
     /// The mesh of `triangles` (grid posts), dropping those that do not overlap the DEM's valid
     /// window (padding), in `frame`.
-    pub fn of_triangles(terrain: &TerrainFile, triangles: &[[[u32; 2]; 3]], frame: ExportFrame) -> Result<TerrainExport> {
+    pub fn of_triangles(
+        terrain: &TerrainFile,
+        triangles: &[[[u32; 2]; 3]],
+        frame: ExportFrame,
+    ) -> Result<TerrainExport> {
         let hd = terrain.header();
         let [_, _, w, h] = hd.valid_window;
         let georef = match (frame, hd.georef) {
@@ -132,8 +136,10 @@ impl TerrainExport {
                     // Central differences (one-sided at the DEM's edge), as the shader's normals.
                     let (x0, x1) = ((xi - 1).max(0), (xi + 1).min(w as i64 - 1).max(xi.min(w as i64 - 1)));
                     let (y0, y1) = ((yi - 1).max(0), (yi + 1).min(h as i64 - 1).max(yi.min(h as i64 - 1)));
-                    let dx = if x1 > x0 { (heights.at(x1, yi) - heights.at(x0, yi)) / ((x1 - x0) as f64 * sx) } else { 0.0 };
-                    let dy = if y1 > y0 { (heights.at(xi, y1) - heights.at(xi, y0)) / ((y1 - y0) as f64 * sy) } else { 0.0 };
+                    let dx =
+                        if x1 > x0 { (heights.at(x1, yi) - heights.at(x0, yi)) / ((x1 - x0) as f64 * sx) } else { 0.0 };
+                    let dy =
+                        if y1 > y0 { (heights.at(xi, y1) - heights.at(xi, y0)) / ((y1 - y0) as f64 * sy) } else { 0.0 };
                     let n = DVec3::new(-dx, -dy, 1.0).normalize();
                     let position = match georef {
                         Some(g) => {
@@ -224,12 +230,8 @@ fn error_mesh(terrain: &TerrainFile, max_error_m: f64) -> Result<Vec<[[u32; 2]; 
     let mut own = vec![0f32; side * side];
     let m = grid.max_coord() as i64;
     let c = m / 2;
-    let roots: [[[i64; 2]; 3]; 4] = [
-        [[0, 0], [c, c], [m, 0]],
-        [[m, 0], [c, c], [m, m]],
-        [[m, m], [c, c], [0, m]],
-        [[0, m], [c, c], [0, 0]],
-    ];
+    let roots: [[[i64; 2]; 3]; 4] =
+        [[[0, 0], [c, c], [m, 0]], [[m, 0], [c, c], [m, m]], [[m, m], [c, c], [0, m]], [[0, m], [c, c], [0, 0]]];
     // (left end of the hypotenuse, apex, right end).
     let mut stack: Vec<[[i64; 2]; 3]> = roots.to_vec();
     while let Some([l, a, r]) = stack.pop() {
@@ -472,11 +474,8 @@ pub fn gltf_bytes(mesh: &TerrainExport, glb: bool, generator: &str) -> Result<Ve
         primitives: vec![primitive],
         weights: None,
     });
-    let node = root.push(json::Node {
-        mesh: Some(m),
-        translation: Some(centre.map(|c| c as f32)),
-        ..Default::default()
-    });
+    let node =
+        root.push(json::Node { mesh: Some(m), translation: Some(centre.map(|c| c as f32)), ..Default::default() });
     let scene = root.push(json::Scene { extensions: None, extras: Default::default(), nodes: vec![node] });
     root.scene = Some(scene);
     let text = root.to_vec().map_err(|e| Error::InvalidArgument(format!("glTF: {e}")))?;
