@@ -34,6 +34,11 @@ struct Frame {
     // The look (src/render/shade.rs, `Look`): (vertical exaggeration, ramp: 0 hypsometric,
     // 1 viridis, 2 grey; 0; 0).
     looks: vec4<f32>,
+    // Imagery (src/render/imagery.rs): texture coordinates of grid posts, u = x + y·gx and
+    // v = z + w·gy; then (1 when an image is draped, how much the hillshade lights it, 1 when u
+    // wraps around the world, 0).
+    imagery_uv: vec4<f32>,
+    imagery: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> frame: Frame;
@@ -45,6 +50,19 @@ struct Frame {
 // The terrain file's void mask: a bit per post of the valid window, rows from the south, least
 // significant bit first (src/core/format/terrain.rs, `VoidMask`).
 @group(0) @binding(3) var<storage, read> void_mask: array<u32>;
+// The draped image (sRGB, mip-mapped; one texel when there is none) and its sampler.
+@group(0) @binding(4) var imagery_texture: texture_2d<f32>;
+@group(0) @binding(5) var imagery_sampler: sampler;
+
+// The draped image's colour at a grid position (linear RGB) and 1 where it covers it, else 0.
+// Called first in the fragment entry points, in uniform control flow (implicit mip level).
+fn imagery_at(grid: vec2<f32>) -> vec4<f32> {
+    let uv = vec2<f32>(frame.imagery_uv.x + frame.imagery_uv.y * grid.x, frame.imagery_uv.z + frame.imagery_uv.w * grid.y);
+    let c = textureSample(imagery_texture, imagery_sampler, uv);
+    let inside_u = frame.imagery.z > 0.5 || (uv.x >= 0.0 && uv.x <= 1.0);
+    let inside = inside_u && uv.y >= 0.0 && uv.y <= 1.0;
+    return vec4<f32>(c.rgb, select(0.0, frame.imagery.x, inside));
+}
 
 // Whether post (x, y) was nodata in the DEM (padding and posts outside the grid are not).
 fn post_is_void(x: i32, y: i32) -> bool {
@@ -309,10 +327,13 @@ fn sky(dir: vec3<f32>) -> vec3<f32> {
     return mix(horizon, vec3<f32>(0.16, 0.34, 0.68), pow(up, 0.6));
 }
 
-// Lit, tinted, fogged colour of the surface seen along `rel` (linear RGB).
-fn shade(s: Surface, rel: vec3<f32>) -> vec3<f32> {
+// Lit, tinted (or draped with `img`, see `imagery_at`), fogged colour of the surface seen along
+// `rel` (linear RGB).
+fn shade(s: Surface, rel: vec3<f32>, img: vec4<f32>) -> vec3<f32> {
     let lambert = max(dot(s.normal, frame.sun_dir.xyz), 0.0);
-    let lit = ramp(s.height_m) * (0.30 + 0.70 * lambert);
+    let light = 0.30 + 0.70 * lambert;
+    let draped = img.rgb * mix(1.0, light, frame.imagery.y);
+    let lit = mix(ramp(s.height_m) * light, draped, img.a);
     let d = length(rel) / frame.fog_distance_m;
     let fog = 1.0 - exp(-d * d);
     return mix(lit, sky(rel), fog);
@@ -338,10 +359,11 @@ fn drawn_surface(grid: vec2<f32>) -> Surface {
 
 @fragment
 fn fs_terrain(in: VertexOut) -> @location(0) vec4<f32> {
+    let img = imagery_at(in.grid);
     if (outside_dem(in.grid)) {
         discard;
     }
-    return vec4<f32>(shade(drawn_surface(in.grid), in.rel), 1.0);
+    return vec4<f32>(shade(drawn_surface(in.grid), in.rel, img), 1.0);
 }
 
 @fragment
@@ -362,6 +384,7 @@ struct Probe {
 
 @fragment
 fn fs_probe(in: VertexOut) -> Probe {
+    let img = imagery_at(in.grid);
     if (outside_dem(in.grid)) {
         discard;
     }
@@ -371,7 +394,7 @@ fn fs_probe(in: VertexOut) -> Probe {
     if (frame.flags == 1u) {
         out.value = vec4<f32>(s.normal, 1.0);
     } else {
-        out.value = vec4<f32>(shade(s, in.rel), 1.0);
+        out.value = vec4<f32>(shade(s, in.rel, img), 1.0);
     }
     return out;
 }

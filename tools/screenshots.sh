@@ -52,4 +52,7 @@ $relief render "$work/etopo20.relief" --eye 12000000,-2000000,4000000 --look 120
 $relief render "$work/etopo20.relief" "${view[@]}" --z-exaggeration 40 --out "$out/looks_etopo_x40.png" >/dev/null
 $relief render "$work/etopo20.relief" "${view[@]}" --z-exaggeration 40 --ramp viridis --sun-azimuth 270 \
   --sun-altitude 25 --out "$out/looks_etopo_x40_viridis.png" >/dev/null
-echo "wrote $out/looks_etopo_x1.png $out/looks_etopo_x40.png $out/looks_etopo_x40_viridis.png"
+# Real imagery of the same place (data/imagery: NASA's world image, with its world file).
+$relief render "$work/etopo20.relief" "${view[@]}" --z-exaggeration 40 --imagery data/imagery/earth_2048.jpg \
+  --out "$out/looks_etopo_x40_draped.png" >/dev/null
+echo "wrote $out/looks_etopo_x1.png $out/looks_etopo_x40.png $out/looks_etopo_x40_viridis.png $out/looks_etopo_x40_draped.png"

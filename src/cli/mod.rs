@@ -231,6 +231,15 @@ pub struct GpuArgs {
     /// Sun height above the horizon, degrees (0 to 90)
     #[arg(long, value_name = "DEG", default_value_t = 45.0, allow_negative_numbers = true)]
     pub sun_altitude: f64,
+    /// Drape an image on the terrain: a north-up PNG or JPEG with a world file (.pgw/.jgw/.wld,
+    /// in the terrain's CRS units; a world image wraps on a geographic terrain), or without one
+    /// an image of exactly the DEM's extent. Held whole on the GPU (down-sampled past the
+    /// adapter's texture size)
+    #[arg(long, value_name = "IMAGE")]
+    pub imagery: Option<std::path::PathBuf>,
+    /// How much the hillshade lights the draped image: 0 the image as it is, 1 fully shaded
+    #[arg(long, value_name = "0..1", default_value_t = 0.7, requires = "imagery", allow_negative_numbers = true)]
+    pub imagery_shade: f32,
 }
 
 impl GpuArgs {
@@ -243,11 +252,19 @@ impl GpuArgs {
             z_exaggeration: self.z_exaggeration,
         };
         look.validate().map_err(anyhow::Error::msg)?;
+        if !(0.0..=1.0).contains(&self.imagery_shade) {
+            anyhow::bail!("--imagery-shade must be 0 to 1 (got {})", self.imagery_shade);
+        }
+        let imagery = match &self.imagery {
+            Some(p) => Some((std::sync::Arc::new(relief::render::imagery::Imagery::open(p)?), self.imagery_shade)),
+            None => None,
+        };
         Ok(relief::render::RendererOptions {
             gpu_memory: bytes("--gpu-memory", &self.gpu_memory)?,
             upload_per_frame: bytes("--gpu-upload", &self.gpu_upload)?,
             nodata: self.nodata_as,
             look,
+            imagery,
             ..Default::default()
         })
     }

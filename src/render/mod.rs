@@ -5,6 +5,7 @@
 pub mod gpu;
 pub mod height_cache;
 pub mod heights;
+pub mod imagery;
 pub mod mesh;
 pub mod mesh_shade;
 pub mod offscreen;

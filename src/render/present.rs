@@ -247,7 +247,7 @@ pub struct StillReport {
 }
 
 /// How to draw a still: the style, the renderer's options (GPU height memory), refinement threads.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct StillOptions {
     pub style: DrawStyle,
     pub renderer: RendererOptions,

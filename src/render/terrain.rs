@@ -18,6 +18,7 @@ use crate::refine::{Morph, Strip, StripVertex};
 use crate::render::gpu::Gpu;
 use crate::render::height_cache::{GpuHeightCache, DEFAULT_GPU_MEMORY, DEFAULT_UPLOAD_PER_FRAME};
 use crate::render::heights::{GpuHeights, HeightTiling};
+use crate::render::imagery::Imagery;
 use crate::render::offscreen::{depth_clear, frame_pass};
 use crate::render::pipeline::{build_pipeline, depth_state, uniform_entry, PipelineSpec};
 use crate::render::shade::{Look, ShadeParams};
@@ -60,6 +61,10 @@ pub struct FrameUniform {
     cache: [u32; 4],
     nodata: [u32; 4],
     looks: [f32; 4],
+    /// Imagery: texture coordinates of grid posts (u = x0 + x1·gx, v = y0 + y1·gy).
+    imagery_uv: [f32; 4],
+    /// Imagery: (1 when draped, hillshade amount, 1 when u wraps, 0).
+    imagery: [f32; 4],
 }
 
 /// What the probe pass writes to its second target (the first always holds grid x, grid y,
@@ -120,7 +125,7 @@ impl NodataStyle {
 }
 
 /// Options for building a renderer.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct RendererOptions {
     /// How the DEM's nodata posts are drawn.
     pub nodata: NodataStyle,
@@ -136,6 +141,9 @@ pub struct RendererOptions {
     pub cache_tile_cells: Option<u32>,
     /// Ramp, sun and vertical exaggeration.
     pub look: Look,
+    /// An image draped on the terrain, and how much of the hillshade lights it (0: the image
+    /// as it is, 1: fully shaded).
+    pub imagery: Option<(Arc<Imagery>, f32)>,
 }
 
 /// Where the shaders read heights from.
@@ -156,6 +164,11 @@ pub struct TerrainRenderer {
     valid_window: [u32; 4],
     /// (style code, 1 when the file has a void mask, 0, 0); see `Frame.nodata` in the shader.
     nodata: [u32; 4],
+    /// See `FrameUniform::imagery_uv` and `imagery`.
+    imagery_uv: [f32; 4],
+    imagery: [f32; 4],
+    /// The draped image (a 1 × 1 texel without one), kept for the bind group.
+    _imagery_texture: wgpu::Texture,
     /// The void mask's bits (one word when the file has none), kept for the bind group.
     _void_mask: wgpu::Buffer,
     uniform: wgpu::Buffer,
@@ -302,7 +315,75 @@ impl TerrainRenderer {
                     },
                     count: None,
                 },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 4,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 5,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
             ],
+        });
+        // The draped image with its mip levels, or one texel when there is none.
+        let (imagery_texture, imagery_uv, imagery, wraps) = {
+            let (levels, uv, on, wraps) = match &options.imagery {
+                Some((img, shade)) => {
+                    let (uv, wraps) = img.uv_of_grid(terrain.header())?;
+                    (
+                        img.levels(limits.max_texture_dimension_2d),
+                        uv,
+                        [1.0, shade.clamp(0.0, 1.0), wraps as u8 as f32, 0.0],
+                        wraps,
+                    )
+                }
+                None => (vec![image::RgbaImage::new(1, 1)], [0.0; 4], [0.0; 4], false),
+            };
+            let (w, h) = levels[0].dimensions();
+            let texture = device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("relief imagery"),
+                size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+                mip_level_count: levels.len() as u32,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: wgpu::TextureFormat::Rgba8UnormSrgb,
+                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+                view_formats: &[],
+            });
+            for (k, level) in levels.iter().enumerate() {
+                let (lw, lh) = level.dimensions();
+                gpu.queue.write_texture(
+                    wgpu::TexelCopyTextureInfo {
+                        texture: &texture,
+                        mip_level: k as u32,
+                        origin: wgpu::Origin3d::ZERO,
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    level.as_raw(),
+                    wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * lw), rows_per_image: Some(lh) },
+                    wgpu::Extent3d { width: lw, height: lh, depth_or_array_layers: 1 },
+                );
+            }
+            (texture, uv, on, wraps)
+        };
+        let imagery_view = imagery_texture.create_view(&Default::default());
+        let address_u = if wraps { wgpu::AddressMode::Repeat } else { wgpu::AddressMode::ClampToEdge };
+        let imagery_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("relief imagery"),
+            address_mode_u: address_u,
+            address_mode_v: wgpu::AddressMode::ClampToEdge,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Linear,
+            ..Default::default()
         });
         // The void mask as 32-bit words (its bytes are little-endian bit order already).
         let mask = if options.nodata == NodataStyle::Filled { None } else { terrain.void_mask()? };
@@ -348,6 +429,8 @@ impl TerrainRenderer {
                 wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(heights_view) },
                 wgpu::BindGroupEntry { binding: 2, resource: table.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 3, resource: void_mask.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::TextureView(&imagery_view) },
+                wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::Sampler(&imagery_sampler) },
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -451,6 +534,9 @@ impl TerrainRenderer {
             },
             nodata,
             _void_mask: void_mask,
+            imagery_uv,
+            imagery,
+            _imagery_texture: imagery_texture,
             uniform,
             bind_group,
             terrain_pipeline,
@@ -618,6 +704,8 @@ impl TerrainRenderer {
             cache,
             nodata: self.nodata,
             looks: [s.z_exaggeration as f32, s.ramp.code() as f32, 0.0, 0.0],
+            imagery_uv: self.imagery_uv,
+            imagery: self.imagery,
         }
     }
 

@@ -135,7 +135,7 @@ impl Scene for TerrainScene {
 
     fn start(&mut self, gpu: &Gpu, format: wgpu::TextureFormat, start: Option<(DVec3, DVec3)>) -> Result<FlyCamera> {
         let o = &self.options;
-        let renderer = TerrainRenderer::new(gpu, &self.terrain, format, o.renderer, o.progress)?;
+        let renderer = TerrainRenderer::new(gpu, &self.terrain, format, o.renderer.clone(), o.progress)?;
         let refine = RefineOptions { heights: renderer.cached(), ..o.refine };
         let source = TerrainSource::new(self.terrain.clone(), refine, o.threads, !o.sync)?;
         self.options.refine = refine;

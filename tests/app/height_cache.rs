@@ -41,6 +41,7 @@ const PAGED: RendererOptions = RendererOptions {
     cache_tile_cells: Some(32),
     nodata: relief::render::NodataStyle::Void,
     look: relief::render::Look::DEFAULT,
+    imagery: None,
 };
 
 #[test]
@@ -162,7 +163,7 @@ fn a_tiny_cache_keeps_every_vertex_at_its_height_and_within_budget() {
         cache_tile_cells: Some(16),
         ..Default::default()
     };
-    let mut cached = TerrainRenderer::new(&gpu, &t, OFFSCREEN_FORMAT, tiny, Progress::hidden()).unwrap();
+    let mut cached = TerrainRenderer::new(&gpu, &t, OFFSCREEN_FORMAT, tiny.clone(), Progress::hidden()).unwrap();
     let mut resident =
         TerrainRenderer::new(&gpu, &t, OFFSCREEN_FORMAT, RendererOptions::default(), Progress::hidden()).unwrap();
     assert_eq!(cached.height_cache().unwrap().slots(), 3);

@@ -233,12 +233,14 @@ struct Golden {
     wireframe: bool,
     geomorph: Option<f64>,
     looks: Look,
+    /// An image draped on it (in the checkout's data/).
+    imagery: Option<&'static str>,
 }
 
 const PLAIN: Look =
     Look { ramp: Ramp::Hypsometric, sun_azimuth_deg: 315.0, sun_altitude_deg: 45.0, z_exaggeration: 1.0 };
 
-const GOLDEN: [Golden; 8] = [
+const GOLDEN: [Golden; 9] = [
     Golden {
         name: "zurich",
         dem: "zurich_25m_i16.tif",
@@ -248,6 +250,7 @@ const GOLDEN: [Golden; 8] = [
         wireframe: false,
         geomorph: None,
         looks: PLAIN,
+        imagery: None,
     },
     Golden {
         name: "zurich_wire_geomorph",
@@ -258,6 +261,7 @@ const GOLDEN: [Golden; 8] = [
         wireframe: true,
         geomorph: Some(2.0),
         looks: PLAIN,
+        imagery: None,
     },
     Golden {
         name: "fuji",
@@ -268,6 +272,7 @@ const GOLDEN: [Golden; 8] = [
         wireframe: false,
         geomorph: None,
         looks: PLAIN,
+        imagery: None,
     },
     Golden {
         name: "lidar",
@@ -278,6 +283,7 @@ const GOLDEN: [Golden; 8] = [
         wireframe: false,
         geomorph: None,
         looks: PLAIN,
+        imagery: None,
     },
     Golden {
         name: "etopo_bathymetry",
@@ -288,6 +294,7 @@ const GOLDEN: [Golden; 8] = [
         wireframe: false,
         geomorph: None,
         looks: PLAIN,
+        imagery: None,
     },
     // Render-time looks: exaggeration with the perceptually uniform ramp, a continental DEM
     // exaggerated 40 times, and the grey hillshade under a low south-east sun.
@@ -300,6 +307,7 @@ const GOLDEN: [Golden; 8] = [
         wireframe: false,
         geomorph: None,
         looks: Look { ramp: Ramp::Viridis, z_exaggeration: 3.0, ..PLAIN },
+        imagery: None,
     },
     Golden {
         name: "etopo_x40",
@@ -310,6 +318,7 @@ const GOLDEN: [Golden; 8] = [
         wireframe: false,
         geomorph: None,
         looks: Look { z_exaggeration: 40.0, ..PLAIN },
+        imagery: None,
     },
     Golden {
         name: "lidar_grey_low_sun",
@@ -320,6 +329,19 @@ const GOLDEN: [Golden; 8] = [
         wireframe: false,
         geomorph: None,
         looks: Look { ramp: Ramp::Grey, sun_azimuth_deg: 135.0, sun_altitude_deg: 20.0, ..PLAIN },
+        imagery: None,
+    },
+    // Real imagery of the same place: NASA's world image on ETOPO20, exaggerated.
+    Golden {
+        name: "etopo_draped_x40",
+        dem: "etopo20_world.tif",
+        eye: [12.0e6, -2.0e6, 1.0e5],
+        look: [12.0e6, 9.0e6, -7.5e4],
+        tolerance_px: 1.0,
+        wireframe: false,
+        geomorph: None,
+        looks: Look { z_exaggeration: 40.0, ..PLAIN },
+        imagery: Some("data/imagery/earth_2048.jpg"),
     },
 ];
 
@@ -332,7 +354,11 @@ fn render_golden(g: &Golden, gpu: &Gpu) -> (image::RgbaImage, StillReport) {
         z_exaggeration: g.looks.z_exaggeration,
         ..Default::default()
     };
-    let renderer = RendererOptions { look: g.looks, ..Default::default() };
+    let imagery = g.imagery.map(|p| {
+        let img = relief::render::imagery::Imagery::open(&Path::new(env!("CARGO_MANIFEST_DIR")).join(p)).unwrap();
+        (Arc::new(img), 0.7)
+    });
+    let renderer = RendererOptions { look: g.looks, imagery, ..Default::default() };
     render_still(
         gpu,
         t,
@@ -386,4 +412,37 @@ fn a_frame_uploads_the_strip_not_the_terrain() {
         assert_eq!(r.heights_gpu_bytes, t.grid().size() as u64 * t.grid().size() as u64 * 4);
         assert!(r.upload_bytes * 10 < terrain_bytes, "{}: {} bytes per frame", g.name, r.upload_bytes);
     }
+}
+
+/// Imagery is placed by its world file in the terrain's CRS: NASA's world image on ETOPO20
+/// (EPSG:4326, its first post at 20.17° E, 89.83° S) wraps in longitude; a bad world file is one
+/// line naming it.
+#[test]
+fn imagery_is_placed_by_its_world_file() {
+    use relief::render::imagery::Imagery;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let img = Imagery::open(&root.join("data/imagery/earth_2048.jpg")).unwrap();
+    assert_eq!(img.image.dimensions(), (2048, 1024));
+    let t = terrain("etopo20_world.tif");
+    let (uv, wraps) = img.uv_of_grid(t.header()).unwrap();
+    assert!(wraps);
+    let g = t.header().georef.unwrap();
+    let (lon, lat) = (g.origin[0], g.origin[1]);
+    assert!((uv[0] as f64 - (lon + 180.0) / 360.0).abs() < 1e-6, "{uv:?}");
+    assert!((uv[2] as f64 - (90.0 - lat) / 180.0).abs() < 1e-6, "{uv:?}");
+    // One post east is a third of a degree; one north moves up the image.
+    assert!((uv[1] as f64 - (1.0 / 3.0) / 360.0).abs() < 1e-9 && uv[3] < 0.0);
+    let dir = tempfile::tempdir().unwrap();
+    let copy = dir.path().join("earth.jpg");
+    std::fs::copy(root.join("data/imagery/earth_2048.jpg"), &copy).unwrap();
+    let wf = dir.path().join("earth.jgw");
+    for (text, want) in [("1 0.1 0 -1 0 0", "rotated"), ("1 0 0 -1 0", "six numbers"), ("1 0 0 1 0 0", "north up")] {
+        std::fs::write(&wf, text).unwrap();
+        let e = Imagery::open(&copy).unwrap_err().to_string();
+        assert!(e.starts_with(&wf.display().to_string()) && e.contains(want) && !e.contains('\n'), "{e}");
+    }
+    // Without a world file the image spans the DEM.
+    std::fs::remove_file(&wf).unwrap();
+    let plain = Imagery::open(&copy).unwrap();
+    assert_eq!(plain.uv_of_grid(t.header()).unwrap(), ([0.0, 1.0 / 1080.0, 1.0, -1.0 / 539.0], false));
 }
