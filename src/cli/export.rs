@@ -31,6 +31,11 @@ pub struct Args {
     /// latitude, and metres up) instead of local metres from the grid's south-west post.
     #[arg(long)]
     pub crs: bool,
+    /// Texture the mesh with an image as `render --imagery` drapes it (PNG or JPEG with a world
+    /// file, or spanning the DEM): texture coordinates follow the image, and glTF files embed it
+    /// as the base colour (OBJ and PLY carry the coordinates only).
+    #[arg(long, value_name = "IMAGE")]
+    pub imagery: Option<PathBuf>,
     #[command(flatten)]
     pub image: ImageArgs,
     #[command(flatten)]
@@ -72,6 +77,20 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         }
         (None, None, Some(m)) => (TerrainExport::within_error(&terrain, m, frame)?, "max-error"),
         _ => anyhow::bail!("say which mesh: --eye X,Y,Z --look X,Y,Z (refined for a view) or --max-error M"),
+    };
+    let mesh = match &a.imagery {
+        Some(p) => {
+            let img = relief::render::imagery::Imagery::open(p)?;
+            let (uv, wraps) = img.uv_of_grid(terrain.header())?;
+            let bytes = std::fs::read(p).map_err(|e| relief::Error::io(p, e))?;
+            let mime = match image::guess_format(&bytes) {
+                Ok(image::ImageFormat::Png) => "image/png",
+                Ok(image::ImageFormat::Jpeg) => "image/jpeg",
+                _ => anyhow::bail!("{}: glTF embeds PNG or JPEG images only", p.display()),
+            };
+            mesh.with_texture(relief::mesh::export::Texture { bytes, mime: mime.into(), wraps }, uv)
+        }
+        None => mesh,
     };
     let comment = format!("relief export of {}", a.file.display());
     write_export(&mesh, &a.out, &comment)?;

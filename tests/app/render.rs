@@ -446,3 +446,54 @@ fn imagery_is_placed_by_its_world_file() {
     let plain = Imagery::open(&copy).unwrap();
     assert_eq!(plain.uv_of_grid(t.header()).unwrap(), ([0.0, 1.0 / 1080.0, 1.0, -1.0 / 539.0], false));
 }
+
+/// `relief export --imagery` textures the mesh as `render --imagery` drapes it: the .glb embeds
+/// the image's own bytes as the base colour (read back with the gltf crate), with a sampler that
+/// wraps in longitude, and the texture coordinates follow the world file.
+#[test]
+fn export_embeds_the_imagery_as_a_gltf_texture() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = terrain("etopo20_world.tif");
+    let image = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/imagery/earth_2048.jpg");
+    let out = dir.path().join("world.glb");
+    let o = common::relief()
+        .arg("export")
+        .arg(t.path())
+        .arg(&out)
+        .args(["--max-error", "500", "--imagery"])
+        .arg(&image)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let bytes = std::fs::read(&out).unwrap();
+    let g = gltf::Gltf::from_slice(&bytes).expect("valid glTF");
+    let blob = g.blob.as_ref().unwrap();
+    let prim = g.meshes().next().unwrap().primitives().next().unwrap();
+    let info = prim.material().pbr_metallic_roughness().base_color_texture().expect("a base colour texture");
+    let tex = info.texture();
+    assert_eq!(tex.sampler().wrap_s(), gltf::texture::WrappingMode::Repeat);
+    let gltf::image::Source::View { view, mime_type } = tex.source().source() else { panic!("an embedded image") };
+    assert_eq!(mime_type, "image/jpeg");
+    assert!(blob[view.offset()..view.offset() + view.length()] == std::fs::read(&image).unwrap()[..]);
+    // The first post (20.17° E, 89.83° S) at its place in the world image.
+    let reader = prim.reader(|_| Some(&blob[..]));
+    let uv: Vec<[f32; 2]> = reader.read_tex_coords(0).unwrap().into_f32().collect();
+    let g0 = t.header().georef.unwrap();
+    let want = [((g0.origin[0] + 180.0) / 360.0) as f32, ((90.0 - g0.origin[1]) / 180.0) as f32];
+    assert!(uv.iter().any(|u| (u[0] - want[0]).abs() < 1e-5 && (u[1] - want[1]).abs() < 1e-5), "{want:?}");
+    // Not an image: one line naming it, nothing written.
+    let bad = dir.path().join("bad.png");
+    std::fs::write(&bad, b"not a png").unwrap();
+    let out2 = dir.path().join("bad.glb");
+    let o = common::relief()
+        .arg("export")
+        .arg(t.path())
+        .arg(&out2)
+        .args(["--max-error", "500", "--imagery"])
+        .arg(&bad)
+        .output()
+        .unwrap();
+    let e = common::stderr_of(&o);
+    assert!(!o.status.success() && e.trim_end().lines().count() == 1 && e.contains(&bad.display().to_string()), "{e}");
+    assert!(!out2.exists());
+}

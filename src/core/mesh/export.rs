@@ -30,6 +30,18 @@ pub struct TerrainExport {
     /// edge (an image of the DEM, north up, maps onto it as is).
     pub uv: Vec<[f32; 2]>,
     pub triangles: Vec<[u32; 3]>,
+    /// An image the texture coordinates map (written into glTF files as the base colour).
+    pub texture: Option<Texture>,
+}
+
+/// An encoded image (PNG or JPEG bytes, as the file had them) for a mesh's base colour.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Texture {
+    pub bytes: Vec<u8>,
+    /// `image/png` or `image/jpeg`.
+    pub mime: String,
+    /// Whether u repeats (a world image on a geographic terrain).
+    pub wraps: bool,
 }
 
 /// Coordinates the positions are given in.
@@ -160,6 +172,17 @@ impl TerrainExport {
             out.triangles.push(tri);
         }
         Ok(out)
+    }
+
+    /// Textures the mesh with `texture`, placed on the grid by `u = a0 + a1·x`, `v = b0 + b1·y`
+    /// (`uv_of_grid = [a0, a1, b0, b1]`, v down the image): the texture coordinates follow it.
+    pub fn with_texture(mut self, texture: Texture, uv_of_grid: [f32; 4]) -> TerrainExport {
+        let [a0, a1, b0, b1] = uv_of_grid.map(|v| v as f64);
+        for (uv, [x, y]) in self.uv.iter_mut().zip(&self.posts) {
+            *uv = [(a0 + a1 * *x as f64) as f32, (b0 + b1 * *y as f64) as f32];
+        }
+        self.texture = Some(texture);
+        self
     }
 
     /// The non-degenerate triangles of a refined strip (those over the DEM).
@@ -404,6 +427,10 @@ pub fn gltf_bytes(mesh: &TerrainExport, glb: bool, generator: &str) -> Result<Ve
             bin.extend_from_slice(&i.to_le_bytes());
         }
     }
+    let image_at = bin.len();
+    if let Some(t) = &mesh.texture {
+        bin.extend_from_slice(&t.bytes);
+    }
     let mut root = json::Root {
         asset: json::Asset { generator: Some(generator.into()), ..Default::default() },
         ..Default::default()
@@ -432,9 +459,49 @@ pub fn gltf_bytes(mesh: &TerrainExport, glb: bool, generator: &str) -> Result<Ve
         view(0, normals_at, ArrayBuffer),
         view(normals_at, uv_at - normals_at, ArrayBuffer),
         view(uv_at, index_at - uv_at, ArrayBuffer),
-        view(index_at, bin.len() - index_at, ElementArrayBuffer),
+        view(index_at, image_at - index_at, ElementArrayBuffer),
     ];
     let views: Vec<_> = views.into_iter().map(|v| root.push(v)).collect();
+    let material = mesh.texture.as_ref().map(|t| {
+        let image_view = root.push(json::buffer::View { target: None, ..view(image_at, t.bytes.len(), ArrayBuffer) });
+        let image = root.push(json::Image {
+            buffer_view: Some(image_view),
+            mime_type: Some(json::image::MimeType(t.mime.clone())),
+            uri: None,
+            extensions: None,
+            extras: Default::default(),
+        });
+        use json::texture::{MagFilter, MinFilter, WrappingMode};
+        let wrap_s = if t.wraps { WrappingMode::Repeat } else { WrappingMode::ClampToEdge };
+        let sampler = root.push(json::texture::Sampler {
+            mag_filter: Some(Valid(MagFilter::Linear)),
+            min_filter: Some(Valid(MinFilter::LinearMipmapLinear)),
+            wrap_s: Valid(wrap_s),
+            wrap_t: Valid(WrappingMode::ClampToEdge),
+            extensions: None,
+            extras: Default::default(),
+        });
+        let texture = root.push(json::Texture {
+            sampler: Some(sampler),
+            source: image,
+            extensions: None,
+            extras: Default::default(),
+        });
+        root.push(json::Material {
+            pbr_metallic_roughness: json::material::PbrMetallicRoughness {
+                base_color_texture: Some(json::texture::Info {
+                    index: texture,
+                    tex_coord: 0,
+                    extensions: None,
+                    extras: Default::default(),
+                }),
+                metallic_factor: json::material::StrengthFactor(0.0),
+                roughness_factor: json::material::StrengthFactor(1.0),
+                ..Default::default()
+            },
+            ..Default::default()
+        })
+    });
     let accessor = |view, count: usize, component, kind, bounds: Option<([f32; 3], [f32; 3])>| json::Accessor {
         buffer_view: Some(view),
         byte_offset: None,
@@ -464,7 +531,7 @@ pub fn gltf_bytes(mesh: &TerrainExport, glb: bool, generator: &str) -> Result<Ve
         extensions: None,
         extras: Default::default(),
         indices: Some(indices),
-        material: None,
+        material,
         mode: Valid(json::mesh::Mode::Triangles),
         targets: None,
     };
