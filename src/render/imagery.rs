@@ -1,7 +1,7 @@
 //! Imagery draped on a terrain (`--imagery FILE`): a north-up PNG or JPEG with a world file
 //! (`.pgw`, `.jgw`, `.pngw`, `.jpgw` or `.wld`: pixel size, rotation terms, the centre of the
-//! upper-left pixel, in the terrain's CRS units), or, for a terrain without a CRS, an image of
-//! exactly the DEM's extent. The image is held whole on the GPU with its mip levels (down-sampled
+//! upper-left pixel, in the terrain's CRS units), a GeoTIFF (or any raster GDAL reads, in builds
+//! with GDAL) placed by its geotransform, or an image of exactly the DEM's extent. The image is held whole on the GPU with its mip levels (down-sampled
 //! first when larger than the GPU's texture limit); the fragment shader samples it at each
 //! fragment's CRS position and lights it with the hillshade as much as asked.
 
@@ -39,9 +39,18 @@ impl std::fmt::Debug for Imagery {
 }
 
 impl Imagery {
-    /// Reads `path` (PNG or JPEG) and its world file, if any.
+    /// Reads `path` (PNG or JPEG; any raster GDAL reads, a GeoTIFF orthophoto say, in builds
+    /// with GDAL) and its world file, if any (else, through GDAL, its geotransform).
     pub fn open(path: &Path) -> Result<Imagery> {
         let bad = |problem: String| Error::BadDem { path: path.into(), problem };
+        let mut magic = [0u8; 4];
+        let head = std::fs::File::open(path)
+            .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
+            .map_err(|e| Error::io(path, e));
+        let is_png_or_jpeg = head.is_ok() && (magic == *b"\x89PNG" || magic[..3] == [0xff, 0xd8, 0xff]);
+        if head.is_ok() && !is_png_or_jpeg {
+            return Imagery::through_gdal(path);
+        }
         let image = image::ImageReader::open(path)
             .map_err(|e| Error::io(path, e))?
             .with_guessed_format()
@@ -52,7 +61,35 @@ impl Imagery {
         if image.width() == 0 || image.height() == 0 {
             return Err(bad("the image is empty".into()));
         }
-        let placement = match world_file(path) {
+        let placement = Imagery::world_file_placement(path)?;
+        Ok(Imagery { path: path.into(), image, placement })
+    }
+
+    /// An image GDAL reads, placed by its world file or else its geotransform.
+    #[cfg(feature = "gdal")]
+    fn through_gdal(path: &Path) -> Result<Imagery> {
+        let (w, h, rgba, transform) = relief_core::dem::read_rgba(path)?;
+        let image = image::RgbaImage::from_raw(w, h, rgba).ok_or_else(|| Error::BadDem {
+            path: path.into(),
+            problem: "GDAL's pixels do not fill the image".into(),
+        })?;
+        let placement = Imagery::world_file_placement(path)?.or(transform);
+        Ok(Imagery { path: path.into(), image, placement })
+    }
+
+    #[cfg(not(feature = "gdal"))]
+    fn through_gdal(path: &Path) -> Result<Imagery> {
+        Err(Error::BadDem {
+            path: path.into(),
+            problem: "not a PNG or JPEG image; other imagery (GeoTIFF, …) needs GDAL: build relief with \
+                      `--features gdal`"
+                .into(),
+        })
+    }
+
+    /// The placement a world file beside `path` gives, if there is one.
+    fn world_file_placement(path: &Path) -> Result<Option<[f64; 4]>> {
+        Ok(match world_file(path) {
             None => None,
             Some(wf) => {
                 let text = std::fs::read_to_string(&wf).map_err(|e| Error::io(&wf, e))?;
@@ -70,8 +107,7 @@ impl Imagery {
                 }
                 Some([c, a, f, -e])
             }
-        };
-        Ok(Imagery { path: path.into(), image, placement })
+        })
     }
 
     /// Texture coordinates of grid posts: `u = a0 + a1·x`, `v = b0 + b1·y` (0..1 over the

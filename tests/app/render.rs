@@ -497,3 +497,32 @@ fn export_embeds_the_imagery_as_a_gltf_texture() {
     assert!(!o.status.success() && e.trim_end().lines().count() == 1 && e.contains(&bad.display().to_string()), "{e}");
     assert!(!out2.exists());
 }
+
+/// A GeoTIFF orthophoto (here NASA's world image made a GeoTIFF with gdal_translate) is read
+/// through GDAL and placed by its geotransform: the same placement as the JPEG's world file, the
+/// same pixels within JPEG decoders' rounding.
+#[cfg(feature = "gdal")]
+#[test]
+fn geotiff_imagery_is_placed_by_its_geotransform() {
+    use relief::render::imagery::Imagery;
+    let dir = tempfile::tempdir().unwrap();
+    let jpg = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/imagery/earth_2048.jpg");
+    let tif = dir.path().join("earth.tif");
+    let o = std::process::Command::new("gdal_translate")
+        .args(["-q", "-a_srs", "EPSG:4326", "-a_ullr", "-180", "90", "180", "-90"])
+        .arg(&jpg)
+        .arg(&tif)
+        .output()
+        .expect("gdal_translate (Debian's gdal-bin)");
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let (a, b) = (Imagery::open(&jpg).unwrap(), Imagery::open(&tif).unwrap());
+    let (pa, pb) = (a.placement.unwrap(), b.placement.unwrap());
+    assert!((0..4).all(|k| (pa[k] - pb[k]).abs() < 1e-9), "{pa:?} {pb:?}");
+    assert_eq!(a.image.dimensions(), b.image.dimensions());
+    let diff: f64 =
+        a.image.as_raw().iter().zip(b.image.as_raw()).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum::<f64>()
+            / a.image.as_raw().len() as f64;
+    assert!(diff < 2.0, "mean difference {diff} levels");
+    let t = terrain("etopo20_world.tif");
+    assert_eq!(a.uv_of_grid(t.header()).unwrap(), b.uv_of_grid(t.header()).unwrap());
+}

@@ -278,3 +278,34 @@ impl DemSource for GdalSource {
         }
     }
 }
+
+/// An image through GDAL (a GeoTIFF orthophoto, a COG, JPEG 2000, …): bands 1–3 as RGB (one
+/// band: grey), 8-bit (other types are clipped to 0..255), RGBA row-major from the top; and its
+/// placement where it is north up: (x of the upper-left pixel's centre, pixel width, y of that
+/// centre, pixel height), in its CRS units.
+pub fn read_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, Option<[f64; 4]>)> {
+    let dataset = open_dataset(path)?;
+    let bands = dataset.raster_count();
+    if bands == 0 {
+        return Err(Error::bad_dem(path, "GDAL finds no raster band in it"));
+    }
+    let (w, h) = dataset.raster_size();
+    if w == 0 || h == 0 || (w as u64) * (h as u64) > 1 << 30 {
+        return Err(Error::bad_dem(path, format!("{w} x {h} pixels: empty, or over 2^30 pixels to hold whole")));
+    }
+    let mut rgba = vec![255u8; w * h * 4];
+    let mut plane = vec![0u8; w * h];
+    for c in 0..3 {
+        let band = dataset.rasterband(if bands >= 3 { c + 1 } else { 1 }).map_err(|e| gdal_error(path, e))?;
+        band.read_into_slice((0, 0), (w, h), (w, h), &mut plane, None).map_err(|e| gdal_error(path, e))?;
+        for (k, v) in plane.iter().enumerate() {
+            rgba[4 * k + c] = *v;
+        }
+    }
+    let placement = dataset
+        .geo_transform()
+        .ok()
+        .filter(|t| t[2] == 0.0 && t[4] == 0.0 && t[1] > 0.0 && t[5] < 0.0)
+        .map(|t| [t[0] + 0.5 * t[1], t[1], t[3] + 0.5 * t[5], -t[5]]);
+    Ok((w as u32, h as u32, rgba, placement))
+}

@@ -10,6 +10,8 @@ mod asc;
 mod exr;
 #[cfg(feature = "gdal")]
 mod gdal;
+#[cfg(feature = "gdal")]
+pub use gdal::read_rgba;
 mod geotiff;
 mod hgt;
 mod mosaic;
