@@ -68,8 +68,9 @@ impl Imagery {
     /// An image GDAL reads, placed by its world file or else its geotransform.
     #[cfg(feature = "gdal")]
     fn through_gdal(path: &Path) -> Result<Imagery> {
-        let (w, h, rgba, transform) = relief_core::dem::read_rgba(path)?;
-        let image = image::RgbaImage::from_raw(w, h, rgba).ok_or_else(|| Error::BadDem {
+        let relief_core::dem::RgbaRaster { width, height, rgba, placement: transform } =
+            relief_core::dem::read_rgba(path)?;
+        let image = image::RgbaImage::from_raw(width, height, rgba).ok_or_else(|| Error::BadDem {
             path: path.into(),
             problem: "GDAL's pixels do not fill the image".into(),
         })?;

@@ -283,7 +283,7 @@ impl DemSource for GdalSource {
 /// band: grey), 8-bit (other types are clipped to 0..255), RGBA row-major from the top; and its
 /// placement where it is north up: (x of the upper-left pixel's centre, pixel width, y of that
 /// centre, pixel height), in its CRS units.
-pub fn read_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, Option<[f64; 4]>)> {
+pub fn read_rgba(path: &Path) -> Result<RgbaRaster> {
     let dataset = open_dataset(path)?;
     let bands = dataset.raster_count();
     if bands == 0 {
@@ -307,5 +307,16 @@ pub fn read_rgba(path: &Path) -> Result<(u32, u32, Vec<u8>, Option<[f64; 4]>)> {
         .ok()
         .filter(|t| t[2] == 0.0 && t[4] == 0.0 && t[1] > 0.0 && t[5] < 0.0)
         .map(|t| [t[0] + 0.5 * t[1], t[1], t[3] + 0.5 * t[5], -t[5]]);
-    Ok((w as u32, h as u32, rgba, placement))
+    Ok(RgbaRaster { width: w as u32, height: h as u32, rgba, placement })
+}
+
+/// What [`read_rgba`] reads.
+pub struct RgbaRaster {
+    pub width: u32,
+    pub height: u32,
+    /// RGBA, row-major from the top.
+    pub rgba: Vec<u8>,
+    /// (x of the upper-left pixel's centre, pixel width, y of that centre, pixel height), where
+    /// the raster is north up.
+    pub placement: Option<[f64; 4]>,
 }

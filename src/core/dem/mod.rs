@@ -11,7 +11,7 @@ mod exr;
 #[cfg(feature = "gdal")]
 mod gdal;
 #[cfg(feature = "gdal")]
-pub use gdal::read_rgba;
+pub use gdal::{read_rgba, RgbaRaster};
 mod geotiff;
 mod hgt;
 mod mosaic;
