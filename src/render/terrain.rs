@@ -2,7 +2,7 @@
 //! the pipelines (terrain, geomorphed terrain, wireframe, sky, and the probe used by tests).
 //!
 //! Per refinement update only the strip is uploaded: 8 bytes per vertex (grid x, y as `u32`), plus
-//! 8 more with geomorphing (blend, morphed height). Per frame a 288-byte uniform follows the
+//! 8 more with geomorphing (blend, morphed height). Per frame a 320-byte uniform follows the
 //! camera. Positions are built in the vertex shader from the heights texture; the fragment shader
 //! shades from the full-resolution heights (CPU reference: `render::shade`).
 
@@ -79,6 +79,8 @@ pub enum Probe {
 
 /// Bytes of the per-frame uniform upload.
 pub const FRAME_UNIFORM_BYTES: u64 = std::mem::size_of::<FrameUniform>() as u64;
+// The figure README.md and ARCHITECTURE.md quote.
+const _: () = assert!(FRAME_UNIFORM_BYTES == 320);
 
 /// How to draw a frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
