@@ -329,7 +329,8 @@ pub fn run_terrain(
         per_frame.push(trace.take().faults);
         triangles += strip.triangle_counts().0;
     }
-    let file_bytes = h.payload_offset + h.payload_bytes;
+    // On disk (pages left out do not count, see `format::terrain`).
+    let file_bytes = terrain.stored_bytes();
     let layout = h.layout.name();
     Ok(run_of(Backend::Terrain, layout, Access::Map, tolerance_px, per_frame, &trace, update_s, triangles, file_bytes))
 }
