@@ -213,27 +213,16 @@ fn closing_the_window_while_recording_saves_the_path() {
     let rt = dir.path().join("rt");
     std::fs::create_dir(&rt).unwrap();
     std::fs::set_permissions(&rt, std::os::unix::fs::PermissionsExt::from_mode(0o700)).unwrap();
-    let mut attempt = 0u32;
-    let (o, e) = loop {
-        // A display of our own (see `common::window_session` on why).
-        let display = 600 + (std::process::id() % 300) + 41 * attempt;
-        let o = Command::new("xvfb-run")
-            .args(["-a", "-n", &display.to_string(), "-s", "-screen 0 800x600x24"])
-            .arg(env!("CARGO_BIN_EXE_relief"))
+    // Display numbers of its own (see `common::xvfb_run`).
+    let display = |attempt: u32| 600 + (std::process::id() % 300) + 41 * attempt;
+    let (o, e) = common::xvfb_run(display, &out, |c| {
+        c.arg(env!("CARGO_BIN_EXE_relief"))
             .args(["fly".as_ref(), file.as_os_str()])
             .args(["--record", "--exit-after-frames", "12", "--width", "320", "--height", "200", "--quiet"])
             .args(["--z-exaggeration", "2", "--output-dir"])
             .arg(&out)
-            .env("XDG_RUNTIME_DIR", &rt)
-            .output()
-            .unwrap();
-        let e = stderr_of(&o);
-        attempt += 1;
-        if attempt < 3 && !o.status.success() && e.contains("connection to X server") {
-            continue;
-        }
-        break (o, e);
-    };
+            .env("XDG_RUNTIME_DIR", &rt);
+    });
     assert!(o.status.success(), "{e}");
     let saved: Vec<PathBuf> = std::fs::read_dir(&out).unwrap().map(|d| d.unwrap().path()).collect();
     assert_eq!(saved.len(), 1, "{saved:?}");

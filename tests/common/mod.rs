@@ -149,6 +149,35 @@ pub fn make_path(kind: &str, file: &Path, frames: u32, out: &Path) {
     assert!(o.status.success(), "{}", stderr_of(&o));
 }
 
+/// Runs `xvfb-run` on display `display(attempt)` with the command `then` sets up, and returns its
+/// output and stderr. `xvfb-run -a` picks the first free display from 99 up, and two test binaries
+/// (or another user of the machine) starting at once can race for it: then the window cannot
+/// connect. So each caller starts from display numbers of its own, and on that failure only tries
+/// again (up to three times) on another, with `out` emptied first.
+pub fn xvfb_run(
+    display: impl Fn(u32) -> u32,
+    out: &Path,
+    then: impl Fn(&mut std::process::Command),
+) -> (std::process::Output, String) {
+    let mut attempt = 0u32;
+    loop {
+        let mut c = std::process::Command::new("xvfb-run");
+        c.args(["-a", "-n", &display(attempt).to_string(), "-s", "-screen 0 800x600x24"]);
+        then(&mut c);
+        let o = c.output().unwrap();
+        let e = stderr_of(&o);
+        attempt += 1;
+        if attempt < 3 && !o.status.success() && e.contains("connection to X server") {
+            eprintln!("note: the X server was not reachable (attempt {attempt}); trying another display");
+            for f in std::fs::read_dir(out).unwrap() {
+                let _ = std::fs::remove_file(f.unwrap().path());
+            }
+            continue;
+        }
+        return (o, e);
+    }
+}
+
 /// Runs `relief ARGS… --width 480 --height 300 …` in a window under Xvfb and presses keys: R
 /// twice (records a path), F (freeze) and T (wireframe), P (a screenshot), then Escape, which must
 /// close it. Asserts that it ran cleanly, that the recorded path loads back with at least two
@@ -192,31 +221,14 @@ pub fn window_session(args: &[&std::ffi::OsStr]) {
         kill -0 $pid 2>/dev/null && { echo "Escape did not close the window"; kill $pid; exit 4; }
         wait $pid
     "#;
-    // `xvfb-run -a` picks the first free display from 99 up, and two test binaries (or another
-    // user of the machine) starting at once can race for it: then the window cannot connect.
-    // Start from a display number of our own, and try again on that failure only.
-    let mut attempt = 0u32;
-    let (o, e) = loop {
-        let display = 100 + (std::process::id() % 400) + 37 * attempt;
-        let o = Command::new("xvfb-run")
-            .args(["-a", "-n", &display.to_string(), "-s", "-screen 0 800x600x24", "sh", "-c", script, "sh"])
+    let display = |attempt: u32| 100 + (std::process::id() % 400) + 37 * attempt;
+    let (o, e) = xvfb_run(display, &out, |c| {
+        c.args(["sh", "-c", script, "sh"])
             .args(args)
             .env("RELIEF", env!("CARGO_BIN_EXE_relief"))
             .env("OUT", &out)
-            .env("XDG_RUNTIME_DIR", &rt)
-            .output()
-            .unwrap();
-        let e = stderr_of(&o);
-        attempt += 1;
-        if attempt < 3 && !o.status.success() && e.contains("connection to X server") {
-            eprintln!("note: the X server was not reachable (attempt {attempt}); trying another display");
-            for f in std::fs::read_dir(&out).unwrap() {
-                let _ = std::fs::remove_file(f.unwrap().path());
-            }
-            continue;
-        }
-        break (o, e);
-    };
+            .env("XDG_RUNTIME_DIR", &rt);
+    });
     assert!(o.status.success(), "window flight failed ({:?}): {e}{}", o.status, String::from_utf8_lossy(&o.stdout));
     assert!(!e.contains("panicked"), "{e}");
     let files: Vec<PathBuf> = std::fs::read_dir(&out).unwrap().map(|d| d.unwrap().path()).collect();

@@ -18,6 +18,11 @@ fn hex(b: &[u8]) -> String {
     b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
+/// The bytes a [`hex`] string spells.
+fn unhex(s: &str) -> Vec<u8> {
+    (0..s.len() / 2).map(|k| u8::from_str_radix(&s[2 * k..2 * k + 2], 16).unwrap()).collect()
+}
+
 fn terrain_header() -> Header {
     // A 9 × 9 grid (n = 3) in the interleaved layout: 4 + 5·(4³ − 1)/3 = 109 records.
     Header {
@@ -228,9 +233,7 @@ fn terrain_header_bytes_are_frozen_and_checked() {
 
 #[test]
 fn version_2_terrain_headers_still_open() {
-    let bytes: Vec<u8> = (0..TERRAIN_GOLDEN_V2.len() / 2)
-        .map(|k| u8::from_str_radix(&TERRAIN_GOLDEN_V2[2 * k..2 * k + 2], 16).unwrap())
-        .collect();
+    let bytes = unhex(TERRAIN_GOLDEN_V2);
     let h: Header = decode_header(Path::new("v2.relief"), &bytes, file_len(FileKind::Terrain)).unwrap();
     assert_eq!(h, Header { version: 2, ..terrain_header() });
     assert!(!h.stores_pages());
@@ -239,9 +242,7 @@ fn version_2_terrain_headers_still_open() {
 
 #[test]
 fn version_1_terrain_headers_still_open_without_a_crs() {
-    let bytes: Vec<u8> = (0..TERRAIN_GOLDEN_V1.len() / 2)
-        .map(|k| u8::from_str_radix(&TERRAIN_GOLDEN_V1[2 * k..2 * k + 2], 16).unwrap())
-        .collect();
+    let bytes = unhex(TERRAIN_GOLDEN_V1);
     let h: Header = decode_header(Path::new("v1.relief"), &bytes, PAYLOAD_OFFSET + 109 * 12).unwrap();
     assert_eq!(h, Header { version: 1, georef: None, void_mask_offset: 0, ..terrain_header() });
     // Version 1 re-encoded is byte for byte what version 1 wrote.

@@ -117,11 +117,7 @@ fn source_files(dataset: &Dataset) -> Vec<PathBuf> {
 /// stated error, WebP's mode), anything else by what GDAL reports. A source that does not open
 /// is left to the read to report.
 fn lossy_source(source: &Path) -> Option<String> {
-    let mut magic = [0u8; 4];
-    let is_tiff = std::fs::File::open(source)
-        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
-        .is_ok_and(|()| matches!(&magic, b"II*\0" | b"MM\0*" | b"II+\0" | b"MM\0+"));
-    if is_tiff {
+    if matches!(super::detect(source), Ok(DemFormat::GeoTiff)) {
         return match super::geotiff::open(source, false) {
             Err(Error::Lossy { what, .. }) => Some(what),
             _ => None,

@@ -16,7 +16,6 @@ use glam::DVec3;
 
 use crate::error::{Error, Result};
 use crate::format::terrain::TerrainFile;
-use crate::layout::Layout;
 use crate::refine::Strip;
 
 /// A mesh of grid posts ready to write: per vertex its post, position, unit normal and texture
@@ -65,14 +64,9 @@ impl Heights {
     fn read(terrain: &TerrainFile) -> Result<Heights> {
         let hd = terrain.header();
         let [_, _, w, h] = hd.valid_window;
-        let records = terrain.records()?;
-        let layout = terrain.layout();
         let mut z = Vec::with_capacity(w as usize * h as usize);
-        for y in 0..h {
-            for x in 0..w {
-                z.push(records[layout.index(x, y) as usize].z);
-            }
-        }
+        let posts = (0..h).flat_map(|y| (0..w).map(move |x| (x, y)));
+        crate::heightcache::read_heights(terrain, posts, |v| z.push(v))?;
         Ok(Heights { z, w, h })
     }
 
