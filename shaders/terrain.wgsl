@@ -36,9 +36,11 @@ struct Frame {
     looks: vec4<f32>,
     // Imagery (src/render/imagery.rs): texture coordinates of grid posts, u = x + y·gx and
     // v = z + w·gy; then (1 when an image is draped, how much the hillshade lights it, 1 when u
-    // wraps around the world, 0).
+    // wraps around the world, 1 when it is paged through the imagery cache); then, paged, the
+    // image's level-0 width and height (texels), tile texels T and levels.
     imagery_uv: vec4<f32>,
     imagery: vec4<f32>,
+    imagery_pages: vec4<f32>,
 };
 
 @group(0) @binding(0) var<uniform> frame: Frame;
@@ -50,18 +52,90 @@ struct Frame {
 // The terrain file's void mask: a bit per post of the valid window, rows from the south, least
 // significant bit first (src/core/format/terrain.rs, `VoidMask`).
 @group(0) @binding(3) var<storage, read> void_mask: array<u32>;
-// The draped image (sRGB, mip-mapped; one texel when there is none) and its sampler.
-@group(0) @binding(4) var imagery_texture: texture_2d<f32>;
+// The draped image (sRGB): whole, as layer 0 with its mip levels (one texel when there is none),
+// or paged, the imagery cache's pool of slots (one tile and its one-texel border per layer).
+@group(0) @binding(4) var imagery_texture: texture_2d_array<f32>;
 @group(0) @binding(5) var imagery_sampler: sampler;
+// The imagery cache's table, laid out as `cache_table` over the image's levels (tiles per row at
+// 16..32); a small unused buffer when the image is whole.
+@group(0) @binding(6) var<storage, read> imagery_table: array<u32>;
+
+// Paged imagery: the level-k tile under level-0 texel coordinate p0 (its table entry) and p0's
+// position in that tile's slot (0..1 over the slot's T + 2 texels).
+struct ImageTile {
+    entry: u32,
+    st: vec2<f32>,
+};
+
+fn image_tile(p0: vec2<f32>, k: u32) -> ImageTile {
+    let size = vec2<u32>(frame.imagery_pages.xy);
+    let level_size = (size + vec2<u32>((1u << k) - 1u)) >> vec2<u32>(k);
+    let t = u32(frame.imagery_pages.z);
+    let pk = clamp(p0 / f32(1u << k), vec2<f32>(0.0), vec2<f32>(level_size));
+    let cell = min(vec2<u32>(floor(pk)), level_size - vec2<u32>(1u));
+    let tile = cell / t;
+    var r: ImageTile;
+    r.entry = imagery_table[32u + imagery_table[k] + tile.y * imagery_table[16u + k] + tile.x];
+    r.st = (pk - vec2<f32>(tile * t) + vec2<f32>(1.0)) / f32(t + 2u);
+    return r;
+}
+
+// The finest resident tile at or above level k (the coarsest is always resident), sampled.
+struct ImageSample {
+    level: u32,
+    fade: f32,
+    rgb: vec3<f32>,
+};
+
+fn image_sample(p0: vec2<f32>, k0: u32) -> ImageSample {
+    let levels = u32(frame.imagery_pages.w);
+    var k = k0;
+    var t = image_tile(p0, k);
+    loop {
+        if (t.entry != 0u || k + 1u >= levels) {
+            break;
+        }
+        k = k + 1u;
+        t = image_tile(p0, k);
+    }
+    var r: ImageSample;
+    r.level = k;
+    r.fade = f32(t.entry >> 24u) / 255.0;
+    let slot = max(i32(t.entry & 0xffffffu) - 1, 0);
+    r.rgb = textureSampleLevel(imagery_texture, imagery_sampler, t.st, slot, 0.0).rgb;
+    return r;
+}
+
+// Paged imagery at level-0 texel p0, `lod` the log2 of level-0 texels per pixel: the finest
+// resident level at or above it, fading in over the next coarser one.
+fn paged_imagery(p0: vec2<f32>, lod: f32) -> vec3<f32> {
+    let levels = u32(frame.imagery_pages.w);
+    let fine = image_sample(p0, u32(clamp(lod, 0.0, f32(levels - 1u))));
+    if (fine.fade < 1.0 && fine.level + 1u < levels) {
+        let coarse = image_sample(p0, fine.level + 1u);
+        return mix(coarse.rgb, fine.rgb, fine.fade);
+    }
+    return fine.rgb;
+}
 
 // The draped image's colour at a grid position (linear RGB) and 1 where it covers it, else 0.
-// Called first in the fragment entry points, in uniform control flow (implicit mip level).
+// Called first in the fragment entry points, in uniform control flow (implicit mip level and
+// derivatives).
 fn imagery_at(grid: vec2<f32>) -> vec4<f32> {
     let uv = vec2<f32>(frame.imagery_uv.x + frame.imagery_uv.y * grid.x, frame.imagery_uv.z + frame.imagery_uv.w * grid.y);
-    let c = textureSample(imagery_texture, imagery_sampler, uv);
+    var c = textureSample(imagery_texture, imagery_sampler, uv, 0).rgb;
+    let p0 = uv * frame.imagery_pages.xy;
+    let lod = log2(max(length(dpdx(p0)), length(dpdy(p0))));
+    if (frame.imagery.w > 0.5) {
+        var u = uv.x;
+        if (frame.imagery.z > 0.5) {
+            u = fract(u);
+        }
+        c = paged_imagery(vec2<f32>(u, uv.y) * frame.imagery_pages.xy, lod);
+    }
     let inside_u = frame.imagery.z > 0.5 || (uv.x >= 0.0 && uv.x <= 1.0);
     let inside = inside_u && uv.y >= 0.0 && uv.y <= 1.0;
-    return vec4<f32>(c.rgb, select(0.0, frame.imagery.x, inside));
+    return vec4<f32>(c, select(0.0, frame.imagery.x, inside));
 }
 
 // Whether post (x, y) was nodata in the DEM (padding and posts outside the grid are not).

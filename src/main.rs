@@ -55,6 +55,14 @@ enum Command {
     /// view-independent mesh within --max-error metres of every DEM post. Positions in local metres
     /// (or the CRS with --crs), normals, and texture coordinates over the DEM, north up.
     Export(cli::export::Args),
+    /// Cut an image once into an imagery tile file that --imagery pages (for images larger than
+    /// memory or GPU memory).
+    ///
+    /// The tile file holds the image's mip levels (each half the size) in tiles of 254² texels
+    /// with a one-texel border, 256 KiB each, and the image's placement (its world file or
+    /// geotransform). `render`, `fly` and the window then read only the tiles the view wants,
+    /// through the pager, and hold them on the GPU within --imagery-gpu-memory.
+    Imagery(cli::imagery::Args),
     /// Compare index layouts by page faults along a flight (the terrain paper's experiment).
     ///
     /// INPUT is a DEM (converted once per layout into --cache-dir) or a terrain file (re-laid out
@@ -104,6 +112,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Fly(a) => cli::fly::run(a),
         Command::Render(a) => cli::render::run(a),
         Command::Export(a) => cli::export::run(a),
+        Command::Imagery(a) => cli::imagery::run(a),
         Command::Layouts(a) => cli::layouts::run(a),
         Command::Path { kind } => cli::path::run(kind),
         Command::Mesh { kind } => cli::mesh::run(kind),

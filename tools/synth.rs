@@ -22,6 +22,9 @@ enum Format {
     Tiff,
     /// 16-bit grayscale PNG, decimetres above −1000 m.
     Png16,
+    /// SYNTHETIC imagery: an 8-bit RGB PNG of `--size` pixels a side coloured from the same
+    /// terrain (by height, with per-pixel grain), to drape over it (`--imagery`).
+    RgbPng,
 }
 
 /// Write a synthetic fractal terrain (fBm) as a DEM.
@@ -182,7 +185,64 @@ fn main() -> Result<()> {
             }
         }
         Format::Png16 => write_png(w, &args, octaves)?,
+        Format::RgbPng => write_rgb_png(w, &args, octaves)?,
     }
-    eprintln!("wrote SYNTHETIC {0}x{0} terrain to {1}", args.size, args.out.display());
+    let what = if matches!(args.format, Format::RgbPng) { "imagery" } else { "terrain" };
+    eprintln!("wrote SYNTHETIC {0}x{0} {what} to {1}", args.size, args.out.display());
+    Ok(())
+}
+
+/// Colour of a height (0..relief): lowland green, then brown, then rock grey and snow.
+fn colour(t: f32) -> [f32; 3] {
+    const STOPS: [(f32, [f32; 3]); 5] = [
+        (0.0, [46.0, 94.0, 42.0]),
+        (0.25, [112.0, 138.0, 64.0]),
+        (0.5, [140.0, 110.0, 72.0]),
+        (0.75, [128.0, 124.0, 120.0]),
+        (1.0, [240.0, 240.0, 245.0]),
+    ];
+    let t = t.clamp(0.0, 1.0);
+    let i = STOPS.iter().rposition(|s| s.0 <= t).unwrap_or(0).min(STOPS.len() - 2);
+    let (a, b) = (STOPS[i], STOPS[i + 1]);
+    let f = (t - a.0) / (b.0 - a.0);
+    [0, 1, 2].map(|c| a.1[c] + (b.1[c] - a.1[c]) * f)
+}
+
+fn write_rgb_png(file: BufWriter<File>, args: &Args, octaves: u32) -> Result<()> {
+    let n = args.size;
+    let mut enc = png::Encoder::new(file, n, n);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::Fast);
+    enc.add_text_chunk(
+        "Description".into(),
+        format!("relief SYNTHETIC imagery of the fractal terrain of seed {}; not a photograph", args.seed),
+    )?;
+    let mut writer = enc.write_header()?;
+    let mut stream = writer.stream_writer()?;
+    const ROWS: u32 = 64;
+    let mut heights = vec![0f32; (ROWS * n) as usize];
+    let mut bytes = vec![0u8; (3 * ROWS * n) as usize];
+    let bar = relief::sys::progress::Progress::new(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .bar("synth", n as u64, "rows");
+    let mut y0 = 0;
+    while y0 < n {
+        let rows = ROWS.min(n - y0);
+        let hs = &mut heights[..(rows * n) as usize];
+        hs.par_chunks_mut(n as usize).enumerate().for_each(|(k, r)| row(args, octaves, y0 + k as u32, r));
+        for (i, (b, h)) in bytes.chunks_exact_mut(3).zip(hs.iter()).enumerate() {
+            let (x, y) = (i as i64 % n as i64, y0 as i64 + i as i64 / n as i64);
+            let grain = (hash(args.seed ^ 0x5eed, x, y) - 0.5) * 24.0;
+            let c = colour(h / args.relief_m as f32);
+            for k in 0..3 {
+                b[k] = (c[k] + grain).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        stream.write_all(&bytes[..(3 * rows * n) as usize])?;
+        y0 += rows;
+        bar.inc(rows as u64);
+    }
+    stream.finish()?;
+    bar.finish_and_clear();
     Ok(())
 }

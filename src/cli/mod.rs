@@ -23,6 +23,7 @@ use relief::sys::progress::Progress;
 pub mod convert;
 pub mod export;
 pub mod fly;
+pub mod imagery;
 pub mod info;
 pub mod layouts;
 pub mod mesh;
@@ -233,13 +234,19 @@ pub struct GpuArgs {
     pub sun_altitude: f64,
     /// Drape an image on the terrain: a north-up PNG or JPEG with a world file (.pgw/.jgw/.wld,
     /// in the terrain's CRS units; a world image wraps on a geographic terrain), or without one
-    /// an image of exactly the DEM's extent. Held whole on the GPU (down-sampled past the
-    /// adapter's texture size)
+    /// an image of exactly the DEM's extent; held whole on the GPU (down-sampled past the
+    /// adapter's texture size). An image larger than that, or than memory: cut it once with
+    /// `relief imagery IMAGE OUT.rimg` and drape OUT.rimg, which is paged (only the tiles the
+    /// view wants are read and held, within --imagery-gpu-memory)
     #[arg(long, value_name = "IMAGE")]
     pub imagery: Option<std::path::PathBuf>,
     /// How much the hillshade lights the draped image: 0 the image as it is, 1 fully shaded
     #[arg(long, value_name = "0..1", default_value_t = 0.7, requires = "imagery", allow_negative_numbers = true)]
     pub imagery_shade: f32,
+    /// Paged imagery (a tile file): GPU memory for its tiles, bytes with a K/M/G suffix; tiles
+    /// are sent within --gpu-upload per frame as heights are [default: 256M]
+    #[arg(long, value_name = "BYTES", requires = "imagery")]
+    pub imagery_gpu_memory: Option<String>,
 }
 
 impl GpuArgs {
@@ -262,6 +269,7 @@ impl GpuArgs {
         Ok(relief::render::RendererOptions {
             gpu_memory: bytes("--gpu-memory", &self.gpu_memory)?,
             upload_per_frame: bytes("--gpu-upload", &self.gpu_upload)?,
+            imagery_gpu_memory: bytes("--imagery-gpu-memory", &self.imagery_gpu_memory)?,
             nodata: self.nodata_as,
             look,
             imagery,

@@ -31,6 +31,7 @@ use serde::Serialize;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::format::imagery::ImageryFile;
 use crate::format::terrain::TerrainFile;
 use crate::layout::{Layout, LayoutVisitor};
 use crate::refine::{Morph, PagerRecords, RecordSource, StripVertex};
@@ -289,8 +290,12 @@ impl WantView {
     /// The level whose posts project to at least a pixel at `distance_m`: the largest `k` with
     /// `2^k · spacing · κ ≤ distance`.
     pub fn level_at(&self, distance_m: f64, coarsest: u32) -> u32 {
-        let spacing = self.spacing_m[0].min(self.spacing_m[1]);
-        let ratio = distance_m / (spacing * self.px_per_rad);
+        self.level_for(self.spacing_m[0].min(self.spacing_m[1]), distance_m, coarsest)
+    }
+
+    /// The largest `k` with `2^k · unit_m · κ ≤ distance` (0 when none), at most `coarsest`.
+    pub fn level_for(&self, unit_m: f64, distance_m: f64, coarsest: u32) -> u32 {
+        let ratio = distance_m / (unit_m * self.px_per_rad);
         if ratio.is_finite() && ratio >= 2.0 {
             (ratio.log2().floor() as u32).min(coarsest)
         } else {
@@ -312,9 +317,49 @@ pub fn plan_wants(
     capacity: usize,
     stamp: &mut Vec<u8>,
 ) -> Wants {
-    stamp.clear();
-    stamp.resize(grid.tiles() as usize, 0);
+    let unit_m = view.spacing_m[0].min(view.spacing_m[1]);
     let coarsest = grid.coarsest_level();
+    plan_tiles(
+        grid.tiles(),
+        coarsest,
+        |k, gx, gy| grid.tile_at(k, gx, gy),
+        |key| {
+            let (k, tx, ty) = grid.decode(key);
+            let per = grid.tiles_per_side(k);
+            (k, tx, ty, per, per)
+        },
+        |k, tx, ty| grid.key(k, tx, ty),
+        vertices,
+        heights,
+        view,
+        unit_m,
+        |v| Some((v.x as f64, v.y as f64)),
+        capacity,
+        stamp,
+    )
+}
+
+/// [`plan_wants`] over any quadtree of tiles: `tile_at(k, position)` the level-`k` tile under a
+/// position (in the tiles' own level-0 units, `position(vertex)`; `None`: the vertex wants
+/// nothing), `decode(key)` its level, tile and the level's tiles per row and column, `key` the
+/// inverse; level `k`'s units are `2^k · unit_m` metres (what is wanted projects to a pixel).
+#[allow(clippy::too_many_arguments)]
+pub fn plan_tiles(
+    tiles: u32,
+    coarsest: u32,
+    tile_at: impl Fn(u32, f64, f64) -> u32,
+    decode: impl Fn(u32) -> (u32, u32, u32, u32, u32),
+    key: impl Fn(u32, u32, u32) -> u32,
+    vertices: &[StripVertex],
+    heights: &[Morph],
+    view: &WantView,
+    unit_m: f64,
+    position: impl Fn(&StripVertex) -> Option<(f64, f64)>,
+    capacity: usize,
+    stamp: &mut Vec<u8>,
+) -> Wants {
+    stamp.clear();
+    stamp.resize(tiles as usize, 0);
     let eye = view.eye_in_world;
     // (level, squared distance, key) per tier; tier 0 sorted coarse first, then near first.
     type Tier = Vec<(u32, f64, u32)>;
@@ -331,32 +376,31 @@ pub fn plan_wants(
         if !view.sees(rel) {
             continue;
         }
+        let Some((gx, gy)) = position(v) else { continue };
         let d2 = rel.length_squared();
         let d = d2.sqrt();
-        let k = view.level_at(d, coarsest);
-        let (gx, gy) = (v.x as f64, v.y as f64);
-        let key = grid.tile_at(k, gx, gy);
+        let k = view.level_for(unit_m, d, coarsest);
+        let key = tile_at(k, gx, gy);
         if stamp[key as usize] != 0 {
             continue;
         }
         for a in k..=coarsest {
-            want(&mut tiers[0], a, d2, grid.tile_at(a, gx, gy), stamp);
+            want(&mut tiers[0], a, d2, tile_at(a, gx, gy), stamp);
         }
-        let ahead = view.level_at(d / LOOK_AHEAD, coarsest);
+        let ahead = view.level_for(unit_m, d / LOOK_AHEAD, coarsest);
         if ahead < k {
             // Marked later, after the neighbours have taken theirs.
-            tiers[2].push((ahead, d2, grid.tile_at(ahead, gx, gy)));
+            tiers[2].push((ahead, d2, tile_at(ahead, gx, gy)));
         }
     }
     // The same-level neighbours of every wanted tile.
     let [first, near, _] = &mut tiers;
-    for &(k, d2, key) in first.iter() {
-        let (_, tx, ty) = grid.decode(key);
-        let per = grid.tiles_per_side(k) as i64;
+    for &(_, d2, k0) in first.iter() {
+        let (k, tx, ty, per_x, per_y) = decode(k0);
         for (dx, dy) in [(-1i64, 0i64), (1, 0), (0, -1), (0, 1)] {
             let (nx, ny) = (tx as i64 + dx, ty as i64 + dy);
-            if (0..per).contains(&nx) && (0..per).contains(&ny) {
-                want(near, k, d2, grid.key(k, nx as u32, ny as u32), stamp);
+            if (0..per_x as i64).contains(&nx) && (0..per_y as i64).contains(&ny) {
+                want(near, k, d2, key(k, nx as u32, ny as u32), stamp);
             }
         }
     }
@@ -370,6 +414,137 @@ pub fn plan_wants(
     let needed = tiers[0].iter().map(|t| t.2).collect();
     let keys: Vec<u32> = tiers.iter().flatten().map(|t| t.2).take(capacity).collect();
     Wants { keys, needed }
+}
+
+/// What a tile cache holds: a quadtree of levels of tiles filled from a file, one slot (GPU
+/// texture layer) per resident tile, and the table the shaders read (its header, then one entry
+/// per tile). Heights ([`TerrainTiles`]) and draped imagery ([`ImageryTiles`]) are the two.
+pub trait TileSet: Send + Sync + 'static {
+    /// A slot's texel: an `f32` height, an RGBA8 colour.
+    type Texel: Copy + Default + Send + 'static;
+    /// Tiles in all levels (table entries).
+    fn tiles(&self) -> u32;
+    /// The one tile of the coarsest level: filled first, never evicted.
+    fn coarsest_key(&self) -> u32;
+    /// Texels per slot side.
+    fn slot_side(&self) -> u32;
+    /// The table's header: per level its first entry, then tiles per row.
+    fn header(&self) -> [u32; TABLE_HEADER as usize];
+    /// Fills `out` (`slot_side()²` texels, rows first) with tile `key`.
+    fn fill(&self, key: u32, out: &mut [Self::Texel]) -> Result<()>;
+    /// The tiles a strip seen from `view` wants, at most `capacity` (see [`plan_wants`]).
+    fn plan(
+        &self,
+        vertices: &[StripVertex],
+        heights: &[Morph],
+        view: &WantView,
+        capacity: usize,
+        stamp: &mut Vec<u8>,
+    ) -> Wants;
+
+    /// GPU bytes of one slot.
+    fn slot_bytes(&self) -> u64 {
+        self.slot_side() as u64 * self.slot_side() as u64 * std::mem::size_of::<Self::Texel>() as u64
+    }
+
+    /// Bytes of the whole table, header included.
+    fn table_bytes(&self) -> u64 {
+        (TABLE_HEADER + self.tiles()) as u64 * 4
+    }
+}
+
+/// A terrain's heights as tiles ([`TileGrid`]), filled from its records through its pager.
+pub struct TerrainTiles {
+    pub terrain: Arc<TerrainFile>,
+    pub grid: TileGrid,
+}
+
+impl TileSet for TerrainTiles {
+    type Texel = f32;
+    fn tiles(&self) -> u32 {
+        self.grid.tiles()
+    }
+    fn coarsest_key(&self) -> u32 {
+        self.grid.key(self.grid.coarsest_level(), 0, 0)
+    }
+    fn slot_side(&self) -> u32 {
+        self.grid.slot_posts()
+    }
+    fn header(&self) -> [u32; TABLE_HEADER as usize] {
+        self.grid.header()
+    }
+    fn fill(&self, key: u32, out: &mut [f32]) -> Result<()> {
+        self.grid.fill(&self.terrain, key, out)
+    }
+    fn plan(&self, v: &[StripVertex], h: &[Morph], view: &WantView, capacity: usize, stamp: &mut Vec<u8>) -> Wants {
+        plan_wants(&self.grid, v, h, view, capacity, stamp)
+    }
+}
+
+/// Imagery draped on a terrain as tiles of an imagery tile file ([`ImageryFile`]): a strip vertex
+/// wants the level whose texels project to about a pixel where it lies in the image.
+pub struct ImageryTiles {
+    pub file: ImageryFile,
+    /// Texture coordinates of grid posts: `u = uv[0] + uv[1]·x`, `v = uv[2] + uv[3]·y` (0..1
+    /// over the image, v down).
+    pub uv: [f64; 4],
+    /// Whether u wraps (a world image on a geographic terrain).
+    pub wraps: bool,
+}
+
+impl ImageryTiles {
+    /// Level-0 texel coordinates of grid position `(x, y)`, `None` outside the image.
+    pub fn texel_of(&self, x: f64, y: f64) -> Option<(f64, f64)> {
+        let g = self.file.grid();
+        let (mut u, v) = (self.uv[0] + self.uv[1] * x, self.uv[2] + self.uv[3] * y);
+        if self.wraps {
+            u = u.rem_euclid(1.0);
+        }
+        ((0.0..=1.0).contains(&u) && (0.0..=1.0).contains(&v)).then_some((u * g.width as f64, v * g.height as f64))
+    }
+}
+
+impl TileSet for ImageryTiles {
+    type Texel = u32;
+    fn tiles(&self) -> u32 {
+        self.file.grid().tiles()
+    }
+    fn coarsest_key(&self) -> u32 {
+        self.file.grid().tiles() - 1
+    }
+    fn slot_side(&self) -> u32 {
+        self.file.grid().slot_side()
+    }
+    fn header(&self) -> [u32; TABLE_HEADER as usize] {
+        self.file.grid().header()
+    }
+    fn fill(&self, key: u32, out: &mut [u32]) -> Result<()> {
+        self.file.read_tile(key, out)
+    }
+    fn plan(&self, v: &[StripVertex], h: &[Morph], view: &WantView, capacity: usize, stamp: &mut Vec<u8>) -> Wants {
+        let g = self.file.grid();
+        // Metres per level-0 texel, in the view's (possibly scaled) scene.
+        let texels_per_post = [self.uv[1].abs() * g.width as f64, self.uv[3].abs() * g.height as f64];
+        let unit_m = (view.spacing_m[0] / texels_per_post[0]).min(view.spacing_m[1] / texels_per_post[1]);
+        plan_tiles(
+            g.tiles(),
+            g.coarsest_level(),
+            |k, px, py| g.tile_at(k, px, py),
+            |key| {
+                let (k, tx, ty) = g.decode(key);
+                let l = g.levels[k as usize];
+                (k, tx, ty, l.tiles_x, l.tiles_y)
+            },
+            |k, tx, ty| g.key(k, tx, ty),
+            v,
+            h,
+            view,
+            unit_m,
+            |p| self.texel_of(p.x as f64, p.y as f64),
+            capacity,
+            stamp,
+        )
+    }
 }
 
 /// The cache's size: GPU memory for slots and table, and CPU → GPU bytes per frame.
@@ -405,10 +580,13 @@ pub struct HeightCacheStats {
     pub step_us: u64,
 }
 
-/// A filled tile for the renderer to write into slot `slot` (its `slot_posts()²` heights).
-pub struct TileUpload<'a> {
+/// What a frame writes: the filled tiles and, when it changed, the table.
+pub type FrameUploads<'a, T> = (Vec<TileUpload<'a, T>>, Option<&'a [u32]>);
+
+/// A filled tile for the renderer to write into slot `slot` (its `slot_side()²` texels).
+pub struct TileUpload<'a, T> {
     pub slot: u32,
-    pub heights: &'a [f32],
+    pub texels: &'a [T],
 }
 
 const ABSENT: u8 = 0;
@@ -416,9 +594,9 @@ const LOADING: u8 = 1;
 const RESIDENT: u8 = 2;
 
 /// A filled tile on its way to the GPU.
-struct Filled {
+struct Filled<T> {
     key: u32,
-    heights: Vec<f32>,
+    texels: Vec<T>,
 }
 
 /// A strip to plan wants for.
@@ -430,11 +608,11 @@ struct WantJob {
 }
 
 /// What the loader and the render thread share.
-struct Shared {
+struct Shared<T> {
     job: Option<WantJob>,
-    ready: VecDeque<Filled>,
+    ready: VecDeque<Filled<T>>,
     /// Spent tile buffers, for reuse.
-    spare: Vec<Vec<f32>>,
+    spare: Vec<Vec<T>>,
     /// The newest plan's needed tiles (for counting fallbacks).
     needed: Vec<u32>,
     error: Option<Error>,
@@ -443,8 +621,8 @@ struct Shared {
     closed: bool,
 }
 
-struct Link {
-    shared: Mutex<Shared>,
+struct Link<T> {
+    shared: Mutex<Shared<T>>,
     wake: Condvar,
     /// Per tile: ABSENT, LOADING (being filled or waiting in `ready`) or RESIDENT.
     state: Vec<AtomicU8>,
@@ -452,15 +630,15 @@ struct Link {
     wanted: Vec<AtomicU64>,
 }
 
-impl Link {
-    fn lock(&self) -> MutexGuard<'_, Shared> {
+impl<T> Link<T> {
+    fn lock(&self) -> MutexGuard<'_, Shared<T>> {
         self.shared.lock().unwrap_or_else(|p| p.into_inner())
     }
 }
 
-/// The render thread's side of the cache: slots, the table, the loader thread.
-pub struct HeightCache {
-    grid: TileGrid,
+/// The render thread's side of a tile cache: slots, the table, the loader thread.
+pub struct TileCache<S: TileSet> {
+    set: Arc<S>,
     budget: CacheBudget,
     slots: u32,
     /// Per slot: the tile in it.
@@ -473,24 +651,41 @@ pub struct HeightCache {
     /// Slots fading in.
     fading: Vec<u32>,
     /// Tiles taken from the loader this frame (their buffers go back after the upload).
-    taken: Vec<Filled>,
-    link: Arc<Link>,
+    taken: Vec<Filled<S::Texel>>,
+    link: Arc<Link<S::Texel>>,
     seq: u64,
     loader: Option<JoinHandle<()>>,
     stats: HeightCacheStats,
 }
+
+/// The GPU height cache's CPU side: a terrain's heights as tiles.
+pub type HeightCache = TileCache<TerrainTiles>;
 
 impl HeightCache {
     /// A cache of `terrain`'s heights in tiles of `tile_cells` cells within `budget`, its coarsest
     /// tile filled now (into slot 0; the caller uploads it from [`Self::frame`]'s first call).
     pub fn new(terrain: Arc<TerrainFile>, tile_cells: u32, budget: CacheBudget) -> Result<HeightCache> {
         let grid = TileGrid::new(terrain.header().n, tile_cells)?;
-        let slot = grid.slot_bytes();
-        let fixed = grid.table_bytes();
+        TileCache::of(TerrainTiles { terrain, grid }, budget, "height")
+    }
+
+    pub fn grid(&self) -> &TileGrid {
+        &self.set.grid
+    }
+}
+
+impl<S: TileSet> TileCache<S> {
+    /// A cache of `set`'s tiles within `budget` (`what` names it in messages: "height",
+    /// "imagery"), its coarsest tile filled now (into slot 0; the caller uploads it from
+    /// [`Self::frame`]'s first call).
+    pub fn of(set: S, budget: CacheBudget, what: &str) -> Result<TileCache<S>> {
+        let set = Arc::new(set);
+        let slot = set.slot_bytes();
+        let fixed = set.table_bytes();
         let slots = (budget.gpu_bytes.saturating_sub(fixed) / slot).min(budget.max_slots as u64) as u32;
         if slots < 2 {
             return Err(Error::InvalidArgument(format!(
-                "a GPU height budget of {} bytes is too small: the cache needs at least {} (two tiles of {} bytes and a {}-byte table)",
+                "a GPU {what} budget of {} bytes is too small: the cache needs at least {} (two tiles of {} bytes and a {}-byte table)",
                 budget.gpu_bytes,
                 2 * slot + fixed,
                 slot,
@@ -499,12 +694,12 @@ impl HeightCache {
         }
         if budget.upload_bytes_per_frame < slot + fixed {
             return Err(Error::InvalidArgument(format!(
-                "an upload budget of {} bytes per frame is too small: one tile and the table take {} bytes",
+                "an upload budget of {} bytes per frame is too small for {what} tiles: one tile and the table take {} bytes",
                 budget.upload_bytes_per_frame,
                 slot + fixed
             )));
         }
-        let tiles = grid.tiles() as usize;
+        let tiles = set.tiles() as usize;
         let link = Arc::new(Link {
             shared: Mutex::new(Shared {
                 job: None,
@@ -519,24 +714,24 @@ impl HeightCache {
             state: (0..tiles).map(|_| AtomicU8::new(ABSENT)).collect(),
             wanted: (0..tiles).map(|_| AtomicU64::new(0)).collect(),
         });
-        // The coarsest tile: filled here, so the first frame has heights everywhere.
-        let top = grid.key(grid.coarsest_level(), 0, 0);
-        let mut heights = vec![0f32; (grid.slot_posts() * grid.slot_posts()) as usize];
-        grid.fill(&terrain, top, &mut heights)?;
+        // The coarsest tile: filled here, so the first frame has texels everywhere.
+        let top = set.coarsest_key();
+        let mut texels = vec![S::Texel::default(); (set.slot_side() * set.slot_side()) as usize];
+        set.fill(top, &mut texels)?;
         link.state[top as usize].store(LOADING, Ordering::Relaxed);
-        link.lock().ready.push_back(Filled { key: top, heights });
-        let mut table = vec![0u32; (TABLE_HEADER + grid.tiles()) as usize];
-        table[..TABLE_HEADER as usize].copy_from_slice(&grid.header());
-        let (g, l) = (grid.clone(), link.clone());
+        link.lock().ready.push_back(Filled { key: top, texels });
+        let mut table = vec![0u32; (TABLE_HEADER + set.tiles()) as usize];
+        table[..TABLE_HEADER as usize].copy_from_slice(&set.header());
+        let (g, l) = (set.clone(), link.clone());
         // The plan names the coarsest tile too (every tile's last ancestor): the pool holds it all.
         let capacity = slots as usize;
         let loader = std::thread::Builder::new()
-            .name("relief-heights".into())
-            .spawn(move || load(&terrain, &g, &l, capacity))
-            .map_err(|e| Error::InvalidArgument(format!("cannot start the height loader thread: {e}")))?;
+            .name(format!("relief-{what}"))
+            .spawn(move || load(&*g, &l, capacity))
+            .map_err(|e| Error::InvalidArgument(format!("cannot start the {what} loader thread: {e}")))?;
         let stats = HeightCacheStats { cached: true, budget_bytes: budget.gpu_bytes, ..Default::default() };
-        Ok(HeightCache {
-            grid,
+        Ok(TileCache {
+            set,
             budget,
             slots,
             slot_key: vec![None; slots as usize],
@@ -552,8 +747,9 @@ impl HeightCache {
         })
     }
 
-    pub fn grid(&self) -> &TileGrid {
-        &self.grid
+    /// What the cache holds tiles of.
+    pub fn set(&self) -> &S {
+        &self.set
     }
 
     /// Slots in the pool (GPU texture layers).
@@ -563,7 +759,7 @@ impl HeightCache {
 
     /// GPU bytes the pool and table take (allocated once, ≤ the budget).
     pub fn pool_bytes(&self) -> u64 {
-        self.slots as u64 * self.grid.slot_bytes() + self.grid.table_bytes()
+        self.slots as u64 * self.set.slot_bytes() + self.set.table_bytes()
     }
 
     /// The table as the shaders read it.
@@ -593,7 +789,7 @@ impl HeightCache {
     /// (never waiting), places them (evicting the least recently wanted), advances the blends,
     /// and returns what to write: the tiles and, when it changed, the table. Call
     /// [`Self::uploaded`] once they are written.
-    pub fn frame(&mut self) -> Result<(Vec<TileUpload<'_>>, Option<&[u32]>)> {
+    pub fn frame(&mut self) -> Result<FrameUploads<'_, S::Texel>> {
         self.recycle();
         let mut stats = HeightCacheStats { cached: true, budget_bytes: self.budget.gpu_bytes, ..Default::default() };
         // Blends advance first, so a tile placed now shows from 0.
@@ -609,7 +805,7 @@ impl HeightCache {
         });
         // Every step goes to the GPU, the last one (to 255) included.
         self.table_dirty |= blended;
-        let (slot_bytes, table_bytes) = (self.grid.slot_bytes(), self.grid.table_bytes());
+        let (slot_bytes, table_bytes) = (self.set.slot_bytes(), self.set.table_bytes());
         let mut room = self.budget.upload_bytes_per_frame.saturating_sub(table_bytes);
         {
             let mut s = self.link.lock();
@@ -648,8 +844,7 @@ impl HeightCache {
         }
         stats.upload_bytes = placed.len() as u64 * slot_bytes + if self.table_dirty { table_bytes } else { 0 };
         self.stats = stats;
-        let uploads =
-            placed.into_iter().map(|(i, slot)| TileUpload { slot, heights: &self.taken[i].heights }).collect();
+        let uploads = placed.into_iter().map(|(i, slot)| TileUpload { slot, texels: &self.taken[i].texels }).collect();
         let table = if std::mem::take(&mut self.table_dirty) { Some(&self.table[..]) } else { None };
         Ok((uploads, table))
     }
@@ -659,7 +854,7 @@ impl HeightCache {
     fn place(&mut self, key: u32, stats: &mut HeightCacheStats) -> Option<u32> {
         let link = self.link.clone();
         let wanted = |k: u32| link.wanted[k as usize].load(Ordering::Relaxed);
-        let top = self.grid.key(self.grid.coarsest_level(), 0, 0);
+        let top = self.set.coarsest_key();
         let slot = match self.free.pop() {
             Some(s) => s,
             None => {
@@ -704,7 +899,7 @@ impl HeightCache {
         let mut s = self.link.lock();
         for f in self.taken.drain(..) {
             if s.spare.len() < 8 {
-                s.spare.push(f.heights);
+                s.spare.push(f.texels);
             }
         }
     }
@@ -732,7 +927,7 @@ impl HeightCache {
     }
 }
 
-impl Drop for HeightCache {
+impl<S: TileSet> Drop for TileCache<S> {
     fn drop(&mut self) {
         self.link.lock().closed = true;
         self.link.wake.notify_all();
@@ -747,11 +942,11 @@ const READY_MAX: usize = 64;
 
 /// The loader thread: plans each new strip's wants and fills the wanted tiles that are absent,
 /// in priority order, until the plan is done or a newer strip arrives.
-fn load(terrain: &TerrainFile, grid: &TileGrid, link: &Link, capacity: usize) {
+fn load<S: TileSet>(set: &S, link: &Link<S::Texel>, capacity: usize) {
     let mut stamp = Vec::new();
     let mut plan: Vec<u32> = Vec::new();
     let mut next = 0usize;
-    let side = (grid.slot_posts() * grid.slot_posts()) as usize;
+    let side = (set.slot_side() * set.slot_side()) as usize;
     loop {
         let job = {
             let mut s = link.lock();
@@ -770,13 +965,12 @@ fn load(terrain: &TerrainFile, grid: &TileGrid, link: &Link, capacity: usize) {
             }
         };
         if let Some(job) = job {
-            let wants = plan_wants(grid, &job.vertices, &job.heights, &job.view, capacity, &mut stamp);
+            let wants = set.plan(&job.vertices, &job.heights, &job.view, capacity, &mut stamp);
             for &k in &wants.keys {
                 link.wanted[k as usize].store(job.seq, Ordering::Relaxed);
             }
             // The coarsest tile is always wanted (never evicted).
-            let top = grid.key(grid.coarsest_level(), 0, 0);
-            link.wanted[top as usize].store(u64::MAX, Ordering::Relaxed);
+            link.wanted[set.coarsest_key() as usize].store(u64::MAX, Ordering::Relaxed);
             link.lock().needed = wants.needed;
             plan = wants.keys;
             next = 0;
@@ -788,10 +982,10 @@ fn load(terrain: &TerrainFile, grid: &TileGrid, link: &Link, capacity: usize) {
         let Some(&key) = plan.get(next) else { continue };
         next += 1;
         link.state[key as usize].store(LOADING, Ordering::Release);
-        let mut heights = link.lock().spare.pop().unwrap_or_default();
-        heights.resize(side, 0.0);
-        match grid.fill(terrain, key, &mut heights) {
-            Ok(()) => link.lock().ready.push_back(Filled { key, heights }),
+        let mut texels = link.lock().spare.pop().unwrap_or_default();
+        texels.resize(side, S::Texel::default());
+        match set.fill(key, &mut texels) {
+            Ok(()) => link.lock().ready.push_back(Filled { key, texels }),
             Err(e) => {
                 link.state[key as usize].store(ABSENT, Ordering::Release);
                 link.lock().error.get_or_insert(e);

@@ -1,14 +1,14 @@
-//! The GPU side of the height cache (`relief_core::heightcache`): the pool of tile slots (an
-//! `R32Float` texture array, one slot per layer) and the table buffer `shaders/terrain.wgsl` reads,
-//! written from what [`HeightCache::frame`] hands over within the per-frame upload budget.
+//! The GPU side of the tile caches (`relief_core::heightcache`): the pool of tile slots (a texture
+//! array, one slot per layer: `R32Float` heights, or `Rgba8UnormSrgb` imagery) and the table
+//! buffer `shaders/terrain.wgsl` reads, written from what [`TileCache::frame`] hands over within
+//! the per-frame upload budget.
 
 use std::sync::Arc;
 
 use crate::error::Result;
 use crate::format::terrain::TerrainFile;
-use crate::heightcache::{CacheBudget, HeightCache, HeightCacheStats, WantView};
+use crate::heightcache::{CacheBudget, HeightCache, HeightCacheStats, TerrainTiles, TileCache, TileSet, WantView};
 use crate::refine::{Morph, StripVertex};
-use crate::render::heights::{height_layers, write_layer};
 
 /// GPU memory for heights when none is given: the whole grid stays resident up to this, else the
 /// cache takes this much (bounded by the adapter's texture limits).
@@ -17,14 +17,17 @@ pub const DEFAULT_GPU_MEMORY: u64 = 2 << 30;
 pub const DEFAULT_UPLOAD_PER_FRAME: u64 = 16 << 20;
 
 /// The pool, the table and the CPU side that fills them.
-pub struct GpuHeightCache {
-    pub cache: HeightCache,
+pub struct GpuTileCache<S: TileSet> {
+    pub cache: TileCache<S>,
     pub texture: wgpu::Texture,
     pub view: wgpu::TextureView,
     pub table: wgpu::Buffer,
     /// Microseconds the last [`Self::sync`] took.
     last_step_us: u64,
 }
+
+/// The height cache on the GPU.
+pub type GpuHeightCache = GpuTileCache<TerrainTiles>;
 
 impl GpuHeightCache {
     /// A pool for `terrain` in tiles of `tile_cells` cells within `budget` (its layer count capped
@@ -35,16 +38,41 @@ impl GpuHeightCache {
         tile_cells: u32,
         budget: CacheBudget,
     ) -> Result<GpuHeightCache> {
-        let cache = HeightCache::new(terrain, tile_cells, budget)?;
-        let side = cache.grid().slot_posts();
-        let (texture, view) = height_layers(device, "relief height cache", side, cache.slots());
+        GpuTileCache::of(device, HeightCache::new(terrain, tile_cells, budget)?, wgpu::TextureFormat::R32Float)
+    }
+}
+
+impl<S: TileSet> GpuTileCache<S>
+where
+    S::Texel: bytemuck::Pod,
+{
+    /// The GPU pool and table of `cache`, slots of `format` (whose texels are `S::Texel`).
+    pub fn of(device: &wgpu::Device, cache: TileCache<S>, format: wgpu::TextureFormat) -> Result<GpuTileCache<S>> {
+        let side = cache.set().slot_side();
+        let label =
+            if format == wgpu::TextureFormat::R32Float { "relief height cache" } else { "relief imagery cache" };
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d { width: side, height: side, depth_or_array_layers: cache.slots() },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor {
+            label: Some(label),
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
         let table = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("relief height table"),
-            size: cache.grid().table_bytes(),
+            label: Some("relief tile table"),
+            size: cache.set().table_bytes(),
             usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        Ok(GpuHeightCache { cache, texture, view, table, last_step_us: 0 })
+        Ok(GpuTileCache { cache, texture, view, table, last_step_us: 0 })
     }
 
     /// Tells the loader about a new strip seen from `view`.
@@ -56,12 +84,27 @@ impl GpuHeightCache {
     /// Never waits for the loader. Returns the bytes written.
     pub fn sync(&mut self, queue: &wgpu::Queue) -> Result<u64> {
         let started = std::time::Instant::now();
-        let side = self.cache.grid().slot_posts();
+        let side = self.cache.set().slot_side();
+        let texel = std::mem::size_of::<S::Texel>() as u32;
         let mut bytes = 0u64;
         let (tiles, table) = self.cache.frame()?;
         for t in &tiles {
-            write_layer(queue, &self.texture, t.slot, side, t.heights);
-            bytes += 4 * t.heights.len() as u64;
+            queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &self.texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d { x: 0, y: 0, z: t.slot },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                bytemuck::cast_slice(t.texels),
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(texel * side),
+                    rows_per_image: Some(side),
+                },
+                wgpu::Extent3d { width: side, height: side, depth_or_array_layers: 1 },
+            );
+            bytes += texel as u64 * t.texels.len() as u64;
         }
         if let Some(table) = table {
             let data: &[u8] = bytemuck::cast_slice(table);

@@ -70,9 +70,11 @@ impl<'g> TerrainPresenter<'g> {
     pub fn settle(&mut self, strip: &crate::refine::Strip, camera: &Camera) -> Result<u64> {
         let mut bytes = self.present(Frame::Strip(strip), true, camera)?;
         let started = Instant::now();
-        while self.renderer.height_cache().is_some_and(|c| !c.converged()) {
+        while self.renderer.height_cache().is_some_and(|c| !c.converged()) || !self.renderer.imagery_converged() {
             if started.elapsed().as_secs() > 600 {
-                return Err(Error::InvalidArgument("the height cache did not settle within 10 minutes".into()));
+                return Err(Error::InvalidArgument(
+                    "the height or imagery cache did not settle within 10 minutes".into(),
+                ));
             }
             let sent = self.present(Frame::Strip(strip), false, camera)?;
             if sent == 0 {
@@ -118,6 +120,10 @@ impl Presenter for TerrainPresenter<'_> {
 
     fn heights(&self) -> HeightCacheStats {
         self.renderer.height_stats()
+    }
+
+    fn imagery(&self) -> HeightCacheStats {
+        self.renderer.imagery_stats()
     }
 }
 

@@ -2,7 +2,7 @@
 //! the pipelines (terrain, geomorphed terrain, wireframe, sky, and the probe used by tests).
 //!
 //! Per refinement update only the strip is uploaded: 8 bytes per vertex (grid x, y as `u32`), plus
-//! 8 more with geomorphing (blend, morphed height). Per frame a 320-byte uniform follows the
+//! 8 more with geomorphing (blend, morphed height). Per frame a 336-byte uniform follows the
 //! camera. Positions are built in the vertex shader from the heights texture; the fragment shader
 //! shades from the full-resolution heights (CPU reference: `render::shade`).
 
@@ -18,7 +18,7 @@ use crate::refine::{Morph, Strip, StripVertex};
 use crate::render::gpu::Gpu;
 use crate::render::height_cache::{GpuHeightCache, DEFAULT_GPU_MEMORY, DEFAULT_UPLOAD_PER_FRAME};
 use crate::render::heights::{GpuHeights, HeightTiling};
-use crate::render::imagery::Imagery;
+use crate::render::imagery::{GpuImagery, Imagery, DEFAULT_IMAGERY_GPU_MEMORY};
 use crate::render::offscreen::{depth_clear, frame_pass};
 use crate::render::pipeline::{build_pipeline, depth_state, uniform_entry, PipelineSpec};
 use crate::render::shade::{Look, ShadeParams};
@@ -63,8 +63,10 @@ pub struct FrameUniform {
     looks: [f32; 4],
     /// Imagery: texture coordinates of grid posts (u = x0 + x1·gx, v = y0 + y1·gy).
     imagery_uv: [f32; 4],
-    /// Imagery: (1 when draped, hillshade amount, 1 when u wraps, 0).
+    /// Imagery: (1 when draped, hillshade amount, 1 when u wraps, 1 when paged).
     imagery: [f32; 4],
+    /// Paged imagery: (level-0 width, height, tile texels, levels).
+    imagery_pages: [f32; 4],
 }
 
 /// What the probe pass writes to its second target (the first always holds grid x, grid y,
@@ -80,7 +82,7 @@ pub enum Probe {
 /// Bytes of the per-frame uniform upload.
 pub const FRAME_UNIFORM_BYTES: u64 = std::mem::size_of::<FrameUniform>() as u64;
 // The figure README.md and ARCHITECTURE.md quote.
-const _: () = assert!(FRAME_UNIFORM_BYTES == 320);
+const _: () = assert!(FRAME_UNIFORM_BYTES == 336);
 
 /// How to draw a frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -146,6 +148,8 @@ pub struct RendererOptions {
     /// An image draped on the terrain, and how much of the hillshade lights it (0: the image
     /// as it is, 1: fully shaded).
     pub imagery: Option<(Arc<Imagery>, f32)>,
+    /// GPU memory for a paged image's tiles, bytes. Default [`DEFAULT_IMAGERY_GPU_MEMORY`].
+    pub imagery_gpu_memory: Option<u64>,
 }
 
 /// Where the shaders read heights from.
@@ -158,6 +162,7 @@ enum Heights {
 
 /// Renders strips of one terrain.
 pub struct TerrainRenderer {
+    terrain: Arc<TerrainFile>,
     heights: Heights,
     /// Exact heights computed here for a strip that came without them (cache only).
     own_morph: Vec<Morph>,
@@ -166,11 +171,8 @@ pub struct TerrainRenderer {
     valid_window: [u32; 4],
     /// (style code, 1 when the file has a void mask, 0, 0); see `Frame.nodata` in the shader.
     nodata: [u32; 4],
-    /// See `FrameUniform::imagery_uv` and `imagery`.
-    imagery_uv: [f32; 4],
-    imagery: [f32; 4],
-    /// The draped image (a 1 × 1 texel without one), kept for the bind group.
-    _imagery_texture: wgpu::Texture,
+    /// The draped image (a 1 × 1 texel without one): whole, or paged through its cache.
+    imagery: GpuImagery,
     /// The void mask's bits (one word when the file has none), kept for the bind group.
     _void_mask: wgpu::Buffer,
     uniform: wgpu::Buffer,
@@ -322,7 +324,7 @@ impl TerrainRenderer {
                     visibility: wgpu::ShaderStages::FRAGMENT,
                     ty: wgpu::BindingType::Texture {
                         sample_type: wgpu::TextureSampleType::Float { filterable: true },
-                        view_dimension: wgpu::TextureViewDimension::D2,
+                        view_dimension: wgpu::TextureViewDimension::D2Array,
                         multisampled: false,
                     },
                     count: None,
@@ -333,60 +335,25 @@ impl TerrainRenderer {
                     ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                     count: None,
                 },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 6,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: true },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
             ],
         });
-        // The draped image with its mip levels, or one texel when there is none.
-        let (imagery_texture, imagery_uv, imagery, wraps) = {
-            let (levels, uv, on, wraps) = match &options.imagery {
-                Some((img, shade)) => {
-                    let (uv, wraps) = img.uv_of_grid(terrain.header())?;
-                    (
-                        img.levels(limits.max_texture_dimension_2d),
-                        uv,
-                        [1.0, shade.clamp(0.0, 1.0), wraps as u8 as f32, 0.0],
-                        wraps,
-                    )
-                }
-                None => (vec![image::RgbaImage::new(1, 1)], [0.0; 4], [0.0; 4], false),
-            };
-            let (w, h) = levels[0].dimensions();
-            let texture = device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("relief imagery"),
-                size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
-                mip_level_count: levels.len() as u32,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::Rgba8UnormSrgb,
-                usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            });
-            for (k, level) in levels.iter().enumerate() {
-                let (lw, lh) = level.dimensions();
-                gpu.queue.write_texture(
-                    wgpu::TexelCopyTextureInfo {
-                        texture: &texture,
-                        mip_level: k as u32,
-                        origin: wgpu::Origin3d::ZERO,
-                        aspect: wgpu::TextureAspect::All,
-                    },
-                    level.as_raw(),
-                    wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * lw), rows_per_image: Some(lh) },
-                    wgpu::Extent3d { width: lw, height: lh, depth_or_array_layers: 1 },
-                );
-            }
-            (texture, uv, on, wraps)
+        // The draped image with its mip levels, or its tile cache, or one texel when there is none.
+        let imagery_budget = CacheBudget {
+            gpu_bytes: options.imagery_gpu_memory.unwrap_or(DEFAULT_IMAGERY_GPU_MEMORY),
+            upload_bytes_per_frame: options.upload_per_frame.unwrap_or(DEFAULT_UPLOAD_PER_FRAME),
+            max_slots: limits.max_texture_array_layers,
         };
-        let imagery_view = imagery_texture.create_view(&Default::default());
-        let address_u = if wraps { wgpu::AddressMode::Repeat } else { wgpu::AddressMode::ClampToEdge };
-        let imagery_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
-            label: Some("relief imagery"),
-            address_mode_u: address_u,
-            address_mode_v: wgpu::AddressMode::ClampToEdge,
-            mag_filter: wgpu::FilterMode::Linear,
-            min_filter: wgpu::FilterMode::Linear,
-            mipmap_filter: wgpu::MipmapFilterMode::Linear,
-            ..Default::default()
-        });
+        let imagery = GpuImagery::new(gpu, terrain, options.imagery.as_ref(), imagery_budget)?;
         // The void mask as 32-bit words (its bytes are little-endian bit order already).
         let mask = if options.nodata == NodataStyle::Filled { None } else { terrain.void_mask()? };
         let mut words = vec![0u32; 1];
@@ -431,8 +398,9 @@ impl TerrainRenderer {
                 wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(heights_view) },
                 wgpu::BindGroupEntry { binding: 2, resource: table.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 3, resource: void_mask.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::TextureView(&imagery_view) },
-                wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::Sampler(&imagery_sampler) },
+                wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::TextureView(&imagery.view) },
+                wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::Sampler(&imagery.sampler) },
+                wgpu::BindGroupEntry { binding: 6, resource: imagery.table().as_entire_binding() },
             ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -527,6 +495,7 @@ impl TerrainRenderer {
         let vertices = VertexBuffer::new(device, "relief strip", 1 << 20);
         let morph = VertexBuffer::new(device, "relief strip morph", 1 << 20);
         Ok(TerrainRenderer {
+            terrain: terrain.clone(),
             heights,
             own_morph: Vec::new(),
             shade,
@@ -536,9 +505,7 @@ impl TerrainRenderer {
             },
             nodata,
             _void_mask: void_mask,
-            imagery_uv,
             imagery,
-            _imagery_texture: imagery_texture,
             uniform,
             bind_group,
             terrain_pipeline,
@@ -607,18 +574,42 @@ impl TerrainRenderer {
     /// (the strip just uploaded, if it changed), then writes the finished tiles that fit the
     /// upload budget, never waiting for the loader. Returns the bytes sent (0 without the cache).
     pub fn sync_heights(&mut self, gpu: &Gpu, camera: &Camera, new_strip: Option<&Strip>) -> Result<u64> {
-        let Heights::Cached { pool, terrain, .. } = &mut self.heights else { return Ok(0) };
-        if let Some(strip) = new_strip {
-            let heights = if strip.morph.len() == strip.vertices.len() { &strip.morph } else { &self.own_morph };
-            // In the scene scaled by 1 / exaggeration, where the heights are the file's (as the
-            // refinement sees it).
-            let x = self.shade.z_exaggeration;
-            let scaled =
-                Camera { eye_in_world: camera.eye_in_world / x, look_at_world: camera.look_at_world / x, ..*camera };
-            let [sx, sy] = terrain.header().spacing_m;
-            pool.want(&strip.vertices, heights, WantView::new(&scaled, [sx / x, sy / x]));
+        // In the scene scaled by 1 / exaggeration, where the heights are the file's (as the
+        // refinement sees it).
+        let x = self.shade.z_exaggeration;
+        let scaled =
+            Camera { eye_in_world: camera.eye_in_world / x, look_at_world: camera.look_at_world / x, ..*camera };
+        let [sx, sy] = self.shade.spacing_m;
+        let view = WantView::new(&scaled, [sx / x, sy / x]);
+        let mut bytes = 0;
+        if let Heights::Cached { pool, .. } = &mut self.heights {
+            if let Some(strip) = new_strip {
+                let heights = if strip.morph.len() == strip.vertices.len() { &strip.morph } else { &self.own_morph };
+                pool.want(&strip.vertices, heights, view);
+            }
+            bytes += pool.sync(&gpu.queue)?;
         }
-        pool.sync(&gpu.queue)
+        if self.imagery.paged() {
+            let heights = match (&self.heights, new_strip) {
+                (Heights::Cached { .. }, Some(s)) if s.morph.len() != s.vertices.len() => &self.own_morph[..],
+                (_, Some(s)) => &s.morph[..],
+                (_, None) => &[],
+            };
+            let strip = new_strip.map(|s| (&s.vertices[..], heights));
+            bytes += self.imagery.sync(&gpu.queue, &self.terrain, strip, view)?;
+        }
+        Ok(bytes)
+    }
+
+    /// The imagery cache's figures of the last frame (zero when the image is whole or absent).
+    pub fn imagery_stats(&self) -> HeightCacheStats {
+        self.imagery.stats()
+    }
+
+    /// Whether the draped image's wanted tiles are all resident and blended in (always when
+    /// whole).
+    pub fn imagery_converged(&self) -> bool {
+        self.imagery.converged()
     }
 
     /// Draws with `look` from the next frame on (the caller refines with its exaggeration).
@@ -706,8 +697,9 @@ impl TerrainRenderer {
             cache,
             nodata: self.nodata,
             looks: [s.z_exaggeration as f32, s.ramp.code() as f32, 0.0, 0.0],
-            imagery_uv: self.imagery_uv,
-            imagery: self.imagery,
+            imagery_uv: self.imagery.uv,
+            imagery: self.imagery.params,
+            imagery_pages: self.imagery.pages,
         }
     }
 

@@ -5,6 +5,7 @@
 
 use std::path::Path;
 
+use relief_core::format::imagery::ImageryHeader;
 use relief_core::format::metanode::MetaHeader;
 use relief_core::format::pagefile::{PageHeader, PageLayout};
 use relief_core::format::terrain::{Header, PAYLOAD_OFFSET, RECORD_BYTES, RECORD_FORMAT_F32};
@@ -135,6 +136,18 @@ fn pages_header() -> PageHeader {
     }
 }
 
+fn imagery_header() -> ImageryHeader {
+    ImageryHeader {
+        width: 1000,
+        height: 300,
+        tile: 254,
+        levels: 3,
+        placement: Some([2_600_012.5, 25.0, 1_200_987.5, 25.0]),
+        tiles: 11,
+        payload_checksum: 0x0123_4567_89ab_cdef,
+    }
+}
+
 /// The file length each sample header describes.
 fn file_len(kind: FileKind) -> u64 {
     match kind {
@@ -143,6 +156,7 @@ fn file_len(kind: FileKind) -> u64 {
         FileKind::Vdt => vdt_header().file_bytes(),
         FileKind::MetaNode => 8192 + 3 * 4096,
         FileKind::Pages => 1024 + 2 * 1024,
+        FileKind::Imagery => 4096 + 11 * 256 * 256 * 4,
     }
 }
 
@@ -193,6 +207,7 @@ fn corrupt_field<F: Format + std::fmt::Debug>(name: &str, edit: impl Fn(&mut Hea
         FileKind::Vdt => vdt_header().encode().0,
         FileKind::MetaNode => metanode_header().encode().0,
         FileKind::Pages => pages_header().encode().0,
+        FileKind::Imagery => imagery_header().encode().0,
     });
     edit(&mut h);
     h.seal();
@@ -303,4 +318,22 @@ fn page_header_bytes_are_frozen_and_checked() {
     container_checks(&pages_header(), "golden.rpg");
     corrupt_field::<PageHeader>("golden.rpg", |h| h.put_u32(20, 9), "unknown layout 9");
     corrupt_field::<PageHeader>("golden.rpg", |h| h.put_u64(24, 0), "0 pages");
+}
+
+#[test]
+fn imagery_header_bytes_are_frozen_and_checked() {
+    assert_eq!(
+        hex(&imagery_header().encode().0[..96]),
+        concat!(
+            "89524c46494d470a01000000e80300002c010000fe0000000300000001000000",
+            "0000004026d643410000000000003940000000805b5332410000000000003940",
+            "0b00000000000000efcdab896745230100000000000000000000000000000000",
+        )
+    );
+    container_checks(&imagery_header(), "golden.rimg");
+    corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_u32(24, 4), "4 levels and 11 tiles");
+    corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_u32(20, 2), "tiles of 2 texels");
+    corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_u32(12, 0), "an image of 0 x 300 texels");
+    corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_f64(40, -25.0), "texel sizes must be positive");
+    corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_u32(28, 6), "unknown flags 0x6");
 }

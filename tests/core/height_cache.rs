@@ -23,7 +23,7 @@ fn settle(cache: &mut HeightCache, t: &TerrainFile) -> usize {
     let slots = cache.slots();
     for frame in 0..10_000 {
         let (uploads, table) = cache.frame().unwrap();
-        let uploads: Vec<(u32, Vec<f32>)> = uploads.iter().map(|u| (u.slot, u.heights.to_vec())).collect();
+        let uploads: Vec<(u32, Vec<f32>)> = uploads.iter().map(|u| (u.slot, u.texels.to_vec())).collect();
         if let Some(table) = table {
             // The header is the grid's; resident entries point at distinct slots.
             assert_eq!(&table[..TABLE_HEADER as usize], &grid.header()[..]);

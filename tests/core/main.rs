@@ -39,5 +39,6 @@ mod exaggeration;
 mod export;
 mod formats;
 mod height_cache;
+mod imagery_tiles;
 mod non_square;
 mod remote;

@@ -246,6 +246,10 @@ pub trait Presenter {
     fn heights(&self) -> HeightCacheStats {
         HeightCacheStats::default()
     }
+    /// The paged imagery cache's figures of the last frame (zero where no image is paged).
+    fn imagery(&self) -> HeightCacheStats {
+        HeightCacheStats::default()
+    }
 }
 
 /// Settings of a headless flight.
@@ -311,6 +315,8 @@ pub struct FrameRecord {
     /// GPU heights: the whole grid resident, or the height cache's frame (bytes in use within
     /// the budget, tiles resident and uploaded, fallbacks to coarser tiles).
     pub gpu_heights: HeightCacheStats,
+    /// Paged imagery: the imagery cache's frame, as `gpu_heights` (zero otherwise).
+    pub gpu_imagery: HeightCacheStats,
 }
 
 /// Mean, median, maximum and total of one figure over a flight's frames.
@@ -386,6 +392,12 @@ pub struct FlightSummary {
     pub height_fallbacks: Summary,
     /// The render thread's time in the height cache's step, microseconds.
     pub height_step_us: Summary,
+    /// Paged imagery: GPU memory in use, tile upload bytes, tiles resident and wanted tiles that
+    /// fell back to a coarser level, per frame.
+    pub gpu_imagery_bytes: Summary,
+    pub imagery_upload_bytes: Summary,
+    pub imagery_tiles_resident: Summary,
+    pub imagery_fallbacks: Summary,
     /// A remote terrain: frames drawn coarser than wanted (data missing), the first frame that
     /// was not, the causal round trips it waited for and when it ended (seconds from the start);
     /// requests and body bytes over the flight.
@@ -459,6 +471,10 @@ impl FlightSummary {
             tiles_resident: s(|f| f.gpu_heights.tiles_resident as f64),
             height_fallbacks: s(|f| f.gpu_heights.fallbacks as f64),
             height_step_us: s(|f| f.gpu_heights.step_us as f64),
+            gpu_imagery_bytes: s(|f| f.gpu_imagery.in_use_bytes as f64),
+            imagery_upload_bytes: s(|f| f.gpu_imagery.upload_bytes as f64),
+            imagery_tiles_resident: s(|f| f.gpu_imagery.tiles_resident as f64),
+            imagery_fallbacks: s(|f| f.gpu_imagery.fallbacks as f64),
             coarse_frames: frames.iter().filter(|f| f.stats.coarse).count() as u64,
             first_complete_frame: first_complete.map(|f| f.frame),
             first_complete_round_trips: first_complete.map(|f| f.stats.round_trips),
@@ -531,10 +547,11 @@ pub fn fly<'p>(
         let stats = source.update(camera, options.tolerance_px)?;
         let faults1 = crate::sys::mem::page_faults();
         let t_render = Instant::now();
-        let (mut upload_bytes, mut gpu_heights) = (0, HeightCacheStats::default());
+        let (mut upload_bytes, mut gpu_heights, mut gpu_imagery) = (0, Default::default(), Default::default());
         if let Some(p) = presenter.as_deref_mut() {
             upload_bytes = p.present(source.frame(), stats.changed || k == 0, camera)?;
             gpu_heights = p.heights();
+            gpu_imagery = p.imagery();
         }
         let render_ms = if presenter.is_some() { t_render.elapsed().as_secs_f64() * 1e3 } else { 0.0 };
         if let (Some(p), Some(dir)) = (presenter.as_deref_mut(), &options.frames_out) {
@@ -551,6 +568,7 @@ pub fn fly<'p>(
             major_faults: faults1.0 - faults0.0,
             minor_faults: faults1.1 - faults0.1,
             gpu_heights,
+            gpu_imagery,
         });
         bar.inc(1);
     }

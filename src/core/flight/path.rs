@@ -679,6 +679,12 @@ impl PathSubject {
                 let b = crate::format::metanode::MetaNodeFile::open(path)?.header().bounds;
                 PathSubject::Box(b, guess(&b))
             }
+            Some(FileKind::Imagery) => {
+                return Err(Error::InvalidArgument(format!(
+                    "{}: an imagery tile file has no terrain or mesh to fly over (drape it with --imagery)",
+                    path.display()
+                )))
+            }
             Some(FileKind::Vdt) | None => {
                 let mesh = crate::mesh::read_mesh(path)?;
                 let b = mesh.bounds().ok_or_else(|| Error::bad_mesh(path, "no vertices"))?;

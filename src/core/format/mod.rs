@@ -1,11 +1,11 @@
-//! relief's four file formats and the one container they share.
+//! relief's five file formats and the one container they share.
 //!
 //! Every relief file starts with the same 256-byte header block:
 //!
 //! ```text
 //! offset size  field
 //!      0    8  magic: "\x89RELIEF\n" (terrain), "\x89RLFVDT\n" (VDT), "\x89RLFMNT\n" (meta-node),
-//!              "\x89RLFPGS\n" (pages)
+//!              "\x89RLFPGS\n" (pages), "\x89RLFIMG\n" (imagery tiles)
 //!      8    4  version of that format
 //!     12  236  the format's own fields (little-endian)
 //!    248    8  header checksum: XXH3-64 of bytes 0..248
@@ -19,7 +19,8 @@
 //! - [`terrain`]: vertex records (height, nested error, bounding radius) in an index layout;
 //! - [`vdt`]: a view-dependence forest (the meta-node build's intermediate file);
 //! - [`metanode`]: meta-node trees blocked into disk pages (DATA + MNT);
-//! - [`pagefile`]: self-contained disk pages with their directory and k-d tree.
+//! - [`pagefile`]: self-contained disk pages with their directory and k-d tree;
+//! - [`imagery`]: an image's mip levels in tiles, for draping imagery larger than memory.
 
 use std::path::Path;
 
@@ -28,6 +29,7 @@ use serde::Serialize;
 use crate::error::{Error, Result};
 use crate::pager::source::Source;
 
+pub mod imagery;
 pub mod metanode;
 pub mod pagefile;
 pub mod terrain;
@@ -46,10 +48,12 @@ pub enum FileKind {
     Vdt,
     MetaNode,
     Pages,
+    Imagery,
 }
 
 impl FileKind {
-    pub const ALL: [FileKind; 4] = [FileKind::Terrain, FileKind::Vdt, FileKind::MetaNode, FileKind::Pages];
+    pub const ALL: [FileKind; 5] =
+        [FileKind::Terrain, FileKind::Vdt, FileKind::MetaNode, FileKind::Pages, FileKind::Imagery];
 
     /// What messages call it.
     pub fn name(self) -> &'static str {
@@ -58,6 +62,7 @@ impl FileKind {
             FileKind::Vdt => "VDT file",
             FileKind::MetaNode => "meta-node file",
             FileKind::Pages => "page file",
+            FileKind::Imagery => "imagery tile file",
         }
     }
 
@@ -68,6 +73,7 @@ impl FileKind {
             FileKind::Vdt => *b"\x89RLFVDT\n",
             FileKind::MetaNode => *b"\x89RLFMNT\n",
             FileKind::Pages => *b"\x89RLFPGS\n",
+            FileKind::Imagery => *b"\x89RLFIMG\n",
         }
     }
 
@@ -78,6 +84,7 @@ impl FileKind {
             FileKind::Vdt => vdt::VERSION,
             FileKind::MetaNode => metanode::VERSION,
             FileKind::Pages => pagefile::VERSION,
+            FileKind::Imagery => imagery::VERSION,
         }
     }
 

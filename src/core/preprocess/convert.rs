@@ -16,7 +16,6 @@ use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use memmap2::MmapMut;
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -34,6 +33,7 @@ use crate::preprocess::fill;
 use crate::sys::cancel;
 use crate::sys::mem::AnonSampler;
 use crate::sys::progress::Progress;
+use crate::sys::scratch::ScratchMap;
 
 /// Mean Earth radius (IUGG), used to turn degrees into metres at the grid's centre latitude.
 pub const EARTH_RADIUS_M: f64 = 6_371_008.8;
@@ -120,40 +120,13 @@ pub struct ConvertReport {
 }
 
 /// A failed `set_len`; EFBIG (larger than the file system's largest file) says how large.
-fn file_system_limit(e: std::io::Error, path: &Path, len: u64) -> Error {
+pub(crate) fn file_system_limit(e: std::io::Error, path: &Path, len: u64) -> Error {
     if e.raw_os_error() == Some(libc::EFBIG) {
         let problem =
             format!("{} is more than this file system allows in one file ({e})", crate::error::tib(len as u128));
         return Error::io(path, std::io::Error::new(e.kind(), problem));
     }
     Error::io(path, e)
-}
-
-/// A writable mapping of a fresh file (the scratch grids).
-struct MappedFile {
-    _file: File, // held for the mapping's lifetime
-    map: MmapMut,
-}
-
-impl MappedFile {
-    fn create(file: File, len: u64, path: &Path) -> Result<MappedFile> {
-        file.set_len(len).map_err(|e| file_system_limit(e, path, len))?;
-        // SAFETY: the file was just created by this process (a temporary or unlinked file nobody
-        // else knows of) and sized above; it is mapped once and lives as long as the map.
-        let map = unsafe { MmapMut::map_mut(&file) }.at(path)?;
-        Ok(MappedFile { _file: file, map })
-    }
-
-    /// A fresh, already unlinked scratch file of `bytes` bytes in `dir`, mapped (it vanishes with the
-    /// process, whatever the exit).
-    fn scratch(dir: &Path, bytes: u64) -> Result<MappedFile> {
-        let file = tempfile::tempfile_in(dir).at(dir)?;
-        MappedFile::create(file, bytes, dir)
-    }
-
-    fn as_mut<T: bytemuck::Pod>(&mut self) -> &mut [T] {
-        bytemuck::cast_slice_mut(&mut self.map[..])
-    }
 }
 
 /// Faults a mapped region in, chunk by chunk from its start, on a helper thread
@@ -397,10 +370,10 @@ fn convert_source(
     // kernel has written it back. The bounds grid spans the whole square but only the stored
     // vertices' pages are ever touched: the rest stays holes.
     let scratch_dir = opts.scratch_dir.clone().unwrap_or_else(|| out_dir.clone());
-    let mut z_map = MappedFile::scratch(&scratch_dir, z_len)?;
-    let mut bounds_map = MappedFile::scratch(&scratch_dir, bounds_len)?;
-    let z_grid: &mut [f32] = z_map.as_mut();
-    let bounds_grid: &mut [[f32; 2]] = bounds_map.as_mut();
+    let mut z_map = ScratchMap::new(&scratch_dir, z_len)?;
+    let mut bounds_map = ScratchMap::new(&scratch_dir, bounds_len)?;
+    let z_grid: &mut [f32] = z_map.slice_mut();
+    let bounds_grid: &mut [[f32; 2]] = bounds_map.slice_mut();
 
     // 1. Read the DEM into the row-major grid (grid row y = height − 1 − image row).
     let t = Instant::now();
