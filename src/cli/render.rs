@@ -53,7 +53,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         print_json(&r)?;
     } else {
         println!(
-            "{}: {} x {} px, {} triangles (strip {}), refine {:.2} ms, render {:.2} ms, {} uploaded this frame, heights {} on the GPU{} ({})",
+            "{}: {} x {} px, {} triangles (strip {}), refine {:.2} ms, render {:.2} ms, {} uploaded this frame, heights {} on the GPU{}{} ({})",
             a.out.display(),
             r.width,
             r.height,
@@ -64,6 +64,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             fmt_bytes(r.upload_bytes),
             fmt_bytes(r.heights_gpu_bytes),
             if r.height_cache { " (height cache)" } else { "" },
+            match (r.imagery_gpu_bytes, r.imagery_tiles_resident) {
+                (0, _) => String::new(),
+                (b, 0) => format!(", imagery {}", fmt_bytes(b)),
+                (b, t) => format!(", imagery {} ({t} tiles resident)", fmt_bytes(b)),
+            },
             r.adapter
         );
     }

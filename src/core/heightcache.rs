@@ -682,7 +682,10 @@ impl<S: TileSet> TileCache<S> {
         let set = Arc::new(set);
         let slot = set.slot_bytes();
         let fixed = set.table_bytes();
-        let slots = (budget.gpu_bytes.saturating_sub(fixed) / slot).min(budget.max_slots as u64) as u32;
+        // No more slots than tiles: a small set is held whole in what it needs.
+        let slots = (budget.gpu_bytes.saturating_sub(fixed) / slot)
+            .min(budget.max_slots as u64)
+            .min(set.tiles().max(2) as u64) as u32;
         if slots < 2 {
             return Err(Error::InvalidArgument(format!(
                 "a GPU {what} budget of {} bytes is too small: the cache needs at least {} (two tiles of {} bytes and a {}-byte table)",

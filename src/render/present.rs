@@ -247,6 +247,10 @@ pub struct StillReport {
     pub heights_gpu_bytes: u64,
     /// Whether heights came from the height cache (the grid exceeds `--gpu-memory`).
     pub height_cache: bool,
+    /// GPU bytes of the draped image (whole with its mip levels, or a tile file's slot pool and
+    /// table), and for a tile file the tiles resident once the view settled (0 otherwise).
+    pub imagery_gpu_bytes: u64,
+    pub imagery_tiles_resident: u64,
     pub width: u32,
     pub height: u32,
     pub adapter: String,
@@ -294,6 +298,8 @@ pub fn render_still(
         upload_bytes,
         heights_gpu_bytes: presenter.renderer.heights_bytes(),
         height_cache: presenter.renderer.cached(),
+        imagery_gpu_bytes: presenter.renderer.imagery_gpu_bytes(),
+        imagery_tiles_resident: presenter.renderer.imagery_stats().tiles_resident,
         width: camera.width_px,
         height: camera.height_px,
         adapter: gpu.describe(),

@@ -601,6 +601,11 @@ impl TerrainRenderer {
         Ok(bytes)
     }
 
+    /// GPU bytes the draped image takes (see [`GpuImagery::gpu_bytes`]).
+    pub fn imagery_gpu_bytes(&self) -> u64 {
+        self.imagery.gpu_bytes()
+    }
+
     /// The imagery cache's figures of the last frame (zero when the image is whole or absent).
     pub fn imagery_stats(&self) -> HeightCacheStats {
         self.imagery.stats()

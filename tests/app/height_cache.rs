@@ -42,6 +42,7 @@ const PAGED: RendererOptions = RendererOptions {
     nodata: relief::render::NodataStyle::Void,
     look: relief::render::Look::DEFAULT,
     imagery: None,
+    imagery_gpu_memory: None,
 };
 
 #[test]

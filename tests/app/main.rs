@@ -19,6 +19,7 @@ mod fly;
 mod fuzz_regressions;
 mod georef;
 mod height_cache;
+mod imagery;
 mod layouts;
 mod mesh_io;
 mod mesh_render;

@@ -422,7 +422,7 @@ fn imagery_is_placed_by_its_world_file() {
     use relief::render::imagery::Imagery;
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let img = Imagery::open(&root.join("data/imagery/earth_2048.jpg")).unwrap();
-    assert_eq!(img.image.dimensions(), (2048, 1024));
+    assert_eq!(img.image().unwrap().dimensions(), (2048, 1024));
     let t = terrain("etopo20_world.tif");
     let (uv, wraps) = img.uv_of_grid(t.header()).unwrap();
     assert!(wraps);
@@ -518,11 +518,58 @@ fn geotiff_imagery_is_placed_by_its_geotransform() {
     let (a, b) = (Imagery::open(&jpg).unwrap(), Imagery::open(&tif).unwrap());
     let (pa, pb) = (a.placement.unwrap(), b.placement.unwrap());
     assert!((0..4).all(|k| (pa[k] - pb[k]).abs() < 1e-9), "{pa:?} {pb:?}");
-    assert_eq!(a.image.dimensions(), b.image.dimensions());
-    let diff: f64 =
-        a.image.as_raw().iter().zip(b.image.as_raw()).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum::<f64>()
-            / a.image.as_raw().len() as f64;
+    let (a_px, b_px) = (a.image().unwrap(), b.image().unwrap());
+    assert_eq!(a_px.dimensions(), b_px.dimensions());
+    let diff: f64 = a_px.as_raw().iter().zip(b_px.as_raw()).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum::<f64>()
+        / a_px.as_raw().len() as f64;
     assert!(diff < 2.0, "mean difference {diff} levels");
     let t = terrain("etopo20_world.tif");
     assert_eq!(a.uv_of_grid(t.header()).unwrap(), b.uv_of_grid(t.header()).unwrap());
+}
+
+/// Paged imagery: the draped golden view drawn from an imagery tile file of the same JPEG
+/// (`relief imagery`) matches the golden image within its tolerance, both with room for every
+/// tile and through a pool of 24 slots (of the file's 69 tiles) that holds only what the view
+/// wants; the pool stays within its budget.
+#[test]
+fn paged_imagery_draws_the_draped_golden_view() {
+    let gpu = gpu();
+    let dir = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let tiles = dir.path().join("earth.rimg");
+    let r = relief::render::imagery::make_tiles(
+        &root.join("data/imagery/earth_2048.jpg"),
+        &tiles,
+        dir.path(),
+        Progress::hidden(),
+    )
+    .unwrap();
+    assert_eq!((r.width, r.height, r.levels, r.tiles), (2048, 1024, 5, 69));
+    let g = GOLDEN.iter().find(|g| g.name == "etopo_draped_x40").unwrap();
+    let t = terrain(g.dem);
+    let cam = g.looks.scene_camera(&camera(g.eye, g.look, 320, 200));
+    let options = RefineOptions { tolerance_px: 1.0, z_exaggeration: g.looks.z_exaggeration, ..Default::default() };
+    let img = Arc::new(relief::render::imagery::Imagery::open(&tiles).unwrap());
+    let slot = 256 * 256 * 4;
+    let table = 4 * (32 + 69);
+    for (slots, budget) in [(69u64, None), (24, Some(24 * slot + table))] {
+        let renderer = RendererOptions {
+            look: g.looks,
+            imagery: Some((img.clone(), 0.7)),
+            imagery_gpu_memory: budget,
+            ..Default::default()
+        };
+        let still = relief::render::StillOptions { renderer, ..Default::default() };
+        let (got, report) = render_still(&gpu, t.clone(), &cam, &options, still, Progress::hidden()).unwrap();
+        assert_eq!(report.imagery_gpu_bytes, slots * slot + table, "{slots} slots");
+        assert!(report.imagery_tiles_resident >= 5 && report.imagery_tiles_resident <= slots, "{report:?}");
+        if let Err(e) = check_golden(g.name, &got) {
+            panic!("paged through {slots} slots: {e}");
+        }
+    }
+    // A budget below two tiles is refused in one line.
+    let renderer = RendererOptions { imagery: Some((img, 0.7)), imagery_gpu_memory: Some(slot), ..Default::default() };
+    let still = relief::render::StillOptions { renderer, ..Default::default() };
+    let e = render_still(&gpu, t, &cam, &options, still, Progress::hidden()).err().unwrap().to_string();
+    assert!(e.contains("a GPU imagery budget of 262144 bytes is too small"), "{e}");
 }

@@ -1,0 +1,96 @@
+//! `relief imagery` and paged imagery from the command line: the tile file of the bundled real
+//! image, bad inputs as one-line errors with nothing written, and a headless flight whose imagery
+//! cache stays within its GPU and upload budgets.
+
+use std::ffi::OsStr;
+use std::path::Path;
+
+use crate::common::{self, relief};
+
+fn fails_with(args: &[&OsStr], needle: &str) {
+    let out = relief().args(args).output().unwrap();
+    let err = common::stderr_of(&out);
+    assert!(!out.status.success(), "expected failure for {args:?}");
+    assert_eq!(err.trim_end().lines().count(), 1, "one line expected: {err}");
+    assert!(err.contains(needle), "'{needle}' not in: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+#[test]
+fn relief_imagery_tiles_the_real_image_and_refuses_bad_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let jpg = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/imagery/earth_2048.jpg");
+    let out = d.join("earth.rimg");
+    let o = relief().arg("imagery").arg(&jpg).arg(&out).arg("--json").output().unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!((j["width"].as_u64(), j["height"].as_u64(), j["levels"].as_u64()), (Some(2048), Some(1024), Some(5)));
+    assert_eq!(j["file_bytes"].as_u64(), Some(std::fs::metadata(&out).unwrap().len()));
+    // The world file's placement travels with the tiles.
+    let img = relief::render::imagery::Imagery::open(&out).unwrap();
+    let whole = relief::render::imagery::Imagery::open(&jpg).unwrap();
+    assert_eq!((img.width, img.height, img.placement), (2048, 1024, whole.placement));
+
+    let junk = d.join("junk.png");
+    std::fs::write(&junk, b"\x89PNG not really").unwrap();
+    let bad_out = d.join("bad.rimg");
+    let os = |p: &Path| p.as_os_str().to_owned();
+    fails_with(&[OsStr::new("imagery"), &os(&junk), &os(&bad_out)], "junk.png");
+    fails_with(&[OsStr::new("imagery"), &os(&out), &os(&bad_out)], "is already an imagery tile file");
+    fails_with(&[OsStr::new("imagery"), &os(&d.join("none.jpg")), &os(&bad_out)], "none.jpg");
+    fails_with(&[OsStr::new("imagery"), &os(&jpg), &os(&d.join("no/such/dir.rimg"))], "does not exist");
+    assert!(!bad_out.exists());
+    let left: Vec<_> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left.len(), 2, "only the tile file and the junk: {left:?}");
+    // A tile file is no terrain to fly over.
+    let p = os(&d.join("p.json"));
+    let path_args = ["path", "flyover"].map(OsStr::new);
+    fails_with(
+        &[path_args[0], path_args[1], &os(&out), OsStr::new("--frames"), OsStr::new("4"), OsStr::new("--out"), &p],
+        "imagery tile file",
+    );
+}
+
+#[test]
+fn a_flight_pages_imagery_within_its_budgets() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let jpg = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/imagery/earth_2048.jpg");
+    let tiles = d.join("earth.rimg");
+    let terrain = d.join("e.relief");
+    let path = d.join("p.json");
+    for args in [
+        vec![OsStr::new("imagery"), jpg.as_os_str(), tiles.as_os_str(), OsStr::new("-q")],
+        vec![
+            OsStr::new("convert"),
+            common::dem("etopo20_world.tif").as_os_str(),
+            terrain.as_os_str(),
+            OsStr::new("-q"),
+        ],
+    ] {
+        let o = relief().args(&args).output().unwrap();
+        assert!(o.status.success(), "{}", common::stderr_of(&o));
+    }
+    common::make_path("flyover", &terrain, 8, &path);
+    // 1,000,000 bytes: 3 slots of 262,144 bytes and the 404-byte table; one tile a frame.
+    let o = relief()
+        .arg("fly")
+        .arg(&terrain)
+        .arg("--path")
+        .arg(&path)
+        .args(["--imagery"])
+        .arg(&tiles)
+        .args(["--imagery-gpu-memory", "1000000", "--gpu-upload", "300000", "--z-exaggeration", "40"])
+        .args(["--width", "160", "--height", "100", "--json"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", common::stderr_of(&o));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let s = &j["summary"];
+    let max = |k: &str| s[k]["max"].as_f64().unwrap();
+    assert!(max("gpu_imagery_bytes") <= 3.0 * 262_144.0 + 404.0, "{s}");
+    assert!(max("imagery_tiles_resident") >= 2.0 && max("imagery_tiles_resident") <= 3.0, "{s}");
+    assert!(max("imagery_upload_bytes") <= 300_000.0, "{s}");
+    assert_eq!(j["frames"].as_array().unwrap().len(), 8);
+}
