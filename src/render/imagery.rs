@@ -21,6 +21,10 @@ use crate::refine::{Morph, StripVertex};
 use crate::render::gpu::Gpu;
 use crate::render::height_cache::GpuTileCache;
 
+/// The largest image held whole (decoded RGBA, before its mip levels): larger ones are paged from
+/// an imagery tile file.
+pub const WHOLE_MAX_BYTES: u64 = 512 << 20;
+
 /// An image to drape and where it lies.
 pub struct Imagery {
     pub path: PathBuf,
@@ -86,13 +90,26 @@ impl Imagery {
         if head.is_ok() && !is_png_or_jpeg {
             return Imagery::through_gdal(path);
         }
-        let image = image::ImageReader::open(path)
-            .map_err(|e| Error::io(path, e))?
-            .with_guessed_format()
-            .map_err(|e| Error::io(path, e))?
-            .decode()
-            .map_err(|e| bad(format!("not a PNG or JPEG image this build reads ({e})")))?
-            .to_rgba8();
+        let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
+            image::ImageReader::open(path)
+                .map_err(|e| Error::io(path, e))?
+                .with_guessed_format()
+                .map_err(|e| Error::io(path, e))
+        };
+        if let Ok((w, h)) = reader()?.into_dimensions() {
+            let bytes = 4 * w as u64 * h as u64;
+            if bytes > WHOLE_MAX_BYTES {
+                return Err(bad(format!(
+                    "a {w} x {h} image takes {} decoded, more than the {} an image held whole may; cut it once \
+                     with `relief imagery {} OUT.rimg` and drape OUT.rimg, which is paged",
+                    format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64),
+                    format!("{} MiB", WHOLE_MAX_BYTES >> 20),
+                    path.display()
+                )));
+            }
+        }
+        let image =
+            reader()?.decode().map_err(|e| bad(format!("not a PNG or JPEG image this build reads ({e})")))?.to_rgba8();
         if image.width() == 0 || image.height() == 0 {
             return Err(bad("the image is empty".into()));
         }
@@ -392,6 +409,7 @@ impl GpuImagery {
     /// GPU bytes the image takes: the pool and table, or the whole image with its mip levels.
     pub fn gpu_bytes(&self) -> u64 {
         match (&self.cache, &self._texture) {
+            _ if self.params[0] == 0.0 => 0,
             (Some(c), _) => c.cache.pool_bytes(),
             (None, Some(t)) => {
                 let (w, h) = (t.width() as u64, t.height() as u64);

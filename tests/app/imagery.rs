@@ -73,6 +73,24 @@ fn a_flight_pages_imagery_within_its_budgets() {
         assert!(o.status.success(), "{}", common::stderr_of(&o));
     }
     common::make_path("flyover", &terrain, 8, &path);
+    // An image too large to hold whole: one line saying how to page it (only its header is read).
+    let huge = d.join("huge.png");
+    {
+        let mut e = png::Encoder::new(std::fs::File::create(&huge).unwrap(), 20_000, 20_000);
+        e.set_color(png::ColorType::Rgb);
+        // The header and a first row of data: decoders read that far to know the size.
+        let mut w = e.write_header().unwrap();
+        let mut rows = w.stream_writer().unwrap();
+        std::io::Write::write_all(&mut rows, &vec![90u8; 3 * 20_000 * 4]).unwrap();
+        std::io::Write::flush(&mut rows).unwrap();
+        drop(rows);
+    }
+    let (t, h, png_out) = (terrain.as_os_str(), huge.as_os_str(), d.join("huge_render.png"));
+    fails_with(
+        &["render".as_ref(), t, "--eye=1e6,1e6,1e6".as_ref(), "--look=2e6,2e6,0".as_ref(), "--imagery".as_ref(), h, "--out".as_ref(), png_out.as_os_str()],
+        "a 20000 x 20000 image takes 1525.9 MiB decoded, more than the 512 MiB an image held whole may; cut it once with `relief imagery",
+    );
+    assert!(!png_out.exists());
     // 1,000,000 bytes: 3 slots of 262,144 bytes and the 404-byte table; one tile a frame.
     let o = relief()
         .arg("fly")

@@ -398,6 +398,8 @@ pub struct FlightSummary {
     pub imagery_upload_bytes: Summary,
     pub imagery_tiles_resident: Summary,
     pub imagery_fallbacks: Summary,
+    /// The render thread's time in the imagery cache's step, microseconds.
+    pub imagery_step_us: Summary,
     /// A remote terrain: frames drawn coarser than wanted (data missing), the first frame that
     /// was not, the causal round trips it waited for and when it ended (seconds from the start);
     /// requests and body bytes over the flight.
@@ -475,6 +477,7 @@ impl FlightSummary {
             imagery_upload_bytes: s(|f| f.gpu_imagery.upload_bytes as f64),
             imagery_tiles_resident: s(|f| f.gpu_imagery.tiles_resident as f64),
             imagery_fallbacks: s(|f| f.gpu_imagery.fallbacks as f64),
+            imagery_step_us: s(|f| f.gpu_imagery.step_us as f64),
             coarse_frames: frames.iter().filter(|f| f.stats.coarse).count() as u64,
             first_complete_frame: first_complete.map(|f| f.frame),
             first_complete_round_trips: first_complete.map(|f| f.stats.round_trips),
