@@ -228,6 +228,55 @@ struct Shell {
     recording: Option<Vec<PathFrame>>,
     message: String,
     frames: u64,
+    /// Pointer events on their way to the panel.
+    panel_input: PanelInput,
+}
+
+/// Whether `e` is a mouse button press / release.
+fn is_button(e: &WindowEvent, pressed: bool) -> bool {
+    matches!(e, WindowEvent::MouseInput { state, .. } if (*state == ElementState::Pressed) == pressed)
+}
+
+/// Paces pointer events into the panel. A press and its release reaching egui in one frame read
+/// as a click where the press was, so a drag of a slider quicker than a frame (at lavapipe's frame
+/// rates an ordinary flick) was lost: a release after a press the panel has not yet had a frame
+/// with, and every pointer event after it, wait for the next frame.
+#[derive(Default)]
+struct PanelInput {
+    held: Vec<WindowEvent>,
+    /// A button press reached the panel since its last frame.
+    pressed: bool,
+}
+
+impl PanelInput {
+    /// Whether `event` may go to the panel now (else it is held).
+    fn offer(&mut self, event: &WindowEvent) -> bool {
+        let pointer = matches!(event, WindowEvent::CursorMoved { .. } | WindowEvent::MouseInput { .. });
+        if pointer && (!self.held.is_empty() || (self.pressed && is_button(event, false))) {
+            self.held.push(event.clone());
+            return false;
+        }
+        self.pressed |= is_button(event, true);
+        true
+    }
+
+    /// After a frame: the held events that go to the panel now, up to the next release that would
+    /// again follow a press within one frame.
+    fn frame_done(&mut self) -> Vec<WindowEvent> {
+        self.pressed = false;
+        let mut now = Vec::new();
+        let mut held = std::mem::take(&mut self.held).into_iter();
+        while let Some(e) = held.next() {
+            if self.pressed && is_button(&e, false) {
+                self.held.push(e);
+                self.held.extend(held);
+                break;
+            }
+            self.pressed |= is_button(&e, true);
+            now.push(e);
+        }
+        now
+    }
 }
 
 impl<S: Scene> App<S> {
@@ -303,6 +352,7 @@ impl<S: Scene> App<S> {
             recording: self.settings.record.then(Vec::new),
             message: String::new(),
             frames: 0,
+            panel_input: PanelInput::default(),
         })
     }
 }
@@ -327,7 +377,7 @@ impl<S: Scene> ApplicationHandler for App<S> {
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
         let Some(s) = self.shell.as_mut() else { return };
         let scene = &mut self.scene;
-        let consumed = s.egui_state.on_window_event(&s.window, &event).consumed;
+        let consumed = s.to_panel(&event);
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::Resized(size) => {
@@ -387,6 +437,7 @@ impl<S: Scene> ApplicationHandler for App<S> {
                     event_loop.exit();
                     return;
                 }
+                s.panel_frame_done();
                 s.frames += 1;
                 if self.settings.exit_after_frames.is_some_and(|n| s.frames >= n) {
                     event_loop.exit();
@@ -400,6 +451,22 @@ impl<S: Scene> ApplicationHandler for App<S> {
 }
 
 impl Shell {
+    /// Hands a window event to the panel (now, or after the next frame: [`PanelInput`]); returns
+    /// whether the panel takes it.
+    fn to_panel(&mut self, event: &WindowEvent) -> bool {
+        if !self.panel_input.offer(event) {
+            return self.egui_ctx.egui_wants_pointer_input();
+        }
+        self.egui_state.on_window_event(&self.window, event).consumed
+    }
+
+    /// After a frame: the held events the panel may have now.
+    fn panel_frame_done(&mut self) {
+        for e in self.panel_input.frame_done() {
+            let _ = self.egui_state.on_window_event(&self.window, &e);
+        }
+    }
+
     fn camera(&self, o: &WindowSettings) -> Result<Camera> {
         self.cam.camera(o.fov_x_deg, self.config.width, self.config.height)
     }
@@ -569,6 +636,37 @@ fn timestamp() -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A drag quicker than a frame (press, moves, release before the panel's next frame) reaches
+    /// the panel as a press and moves in one frame and the release in the next, so egui sees a
+    /// drag and not a click; events held keep their order, and a second quick click waits too.
+    #[test]
+    fn a_release_waits_for_a_frame_after_its_press() {
+        use winit::event::{DeviceId, MouseButton};
+        let button = |state| WindowEvent::MouseInput { device_id: DeviceId::dummy(), state, button: MouseButton::Left };
+        let moved = |x: f64| WindowEvent::CursorMoved {
+            device_id: DeviceId::dummy(),
+            position: winit::dpi::PhysicalPosition::new(x, 10.0),
+        };
+        let (press, release) = (button(ElementState::Pressed), button(ElementState::Released));
+        let mut p = PanelInput::default();
+        assert!(p.offer(&moved(49.0)) && p.offer(&press) && p.offer(&moved(80.0)) && p.offer(&moved(110.0)));
+        assert!(!p.offer(&release), "the release waits for the next frame");
+        assert!(
+            !p.offer(&moved(120.0)) && !p.offer(&press) && !p.offer(&release),
+            "later pointer events queue behind it"
+        );
+        assert!(p.offer(&WindowEvent::Focused(true)), "other events are not held");
+        // Next frame: the release, the move and the second press; its release one frame later.
+        assert_eq!(p.frame_done(), vec![release.clone(), moved(120.0), press.clone()]);
+        assert!(!p.offer(&moved(130.0)));
+        assert_eq!(p.frame_done(), vec![release.clone(), moved(130.0)]);
+        assert!(p.frame_done().is_empty());
+        // A slow click (the release a frame or more after the press) is never held.
+        assert!(p.offer(&press));
+        assert!(p.frame_done().is_empty());
+        assert!(p.offer(&release));
+    }
 
     #[test]
     fn display_errors_lose_winit_source_locations() {

@@ -205,7 +205,7 @@ impl Scene for TerrainScene {
         let Some(d) = &self.drawn else { return Vec::new() };
         let st = &self.stats;
         let r = &d.renderer;
-        vec![
+        let mut rows = vec![
             ("refine", format!("{:.2} ms{}", st.refine_ms, if self.options.sync { " (sync)" } else { "" })),
             ("triangles", format!("{}", r.triangles())),
             ("strip length", format!("{}", r.strip_len())),
@@ -237,7 +237,26 @@ impl Scene for TerrainScene {
             ("resident", format!("{:.1} MiB", mem::rss_bytes().unwrap_or(0) as f64 / 1048576.0)),
             ("page faults", format!("{:.0}/s ({:.0} major/s)", st.faults_per_s, st.major_faults_per_s)),
             ("strip lag", format!("{} frames", st.lag)),
-        ]
+        ];
+        let i = r.imagery_stats();
+        if i.cached {
+            rows.insert(
+                7,
+                (
+                    "imagery tiles",
+                    format!(
+                        "{} resident ({:.1} of {:.1} MiB), {} wanted, {} coarser, +{} this frame",
+                        i.tiles_resident,
+                        i.in_use_bytes as f64 / 1048576.0,
+                        i.budget_bytes as f64 / 1048576.0,
+                        i.wanted,
+                        i.fallbacks,
+                        i.tiles_uploaded
+                    ),
+                ),
+            );
+        }
+        rows
     }
 
     fn controls(&mut self, ui: &mut egui::Ui) {
