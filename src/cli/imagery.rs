@@ -38,7 +38,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         print_json(&r)?;
     } else {
         println!(
-            "{}: {} x {} texels in {} levels, {} tiles of 256² texels, {} bytes ({:.2} s); drape it with --imagery {}",
+            "{}: {} x {} texels in {} levels, {} tiles of 254² texels (256 KiB each with their border), {} bytes ({:.2} s); drape it with --imagery {}",
             a.out.display(),
             r.width,
             r.height,

@@ -18,6 +18,9 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    if relief::format::sniff(&a.file)? == Some(relief::format::FileKind::Imagery) {
+        return imagery_info(&a);
+    }
     let f = TerrainFile::open(&a.file)?;
     let i = inspect::info(&f);
     if a.json {
@@ -101,5 +104,36 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     println!("source format {}", i.source_format);
     println!("file          {} ({} bytes), payload xxh3 {}", fmt_bytes(i.file_bytes), i.file_bytes, i.payload_checksum);
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `relief info` of an imagery tile file (`relief imagery`): its size, levels, tiles, placement.
+fn imagery_info(a: &Args) -> anyhow::Result<ExitCode> {
+    let f = relief::format::imagery::ImageryFile::open(&a.file, relief::pager::Access::Read)?;
+    let h = f.header();
+    if a.json {
+        #[derive(serde::Serialize)]
+        struct Info<'a> {
+            file: String,
+            kind: &'static str,
+            #[serde(flatten)]
+            header: &'a relief::format::imagery::ImageryHeader,
+            file_bytes: u64,
+        }
+        print_json(&Info { file: a.file.display().to_string(), kind: "imagery", header: h, file_bytes: h.file_len() })?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    println!("file          {} (imagery tile file)", a.file.display());
+    println!(
+        "image         {} x {} texels, {} mip levels, {} tiles of {}² texels with a 1-texel border",
+        h.width, h.height, h.levels, h.tiles, h.tile
+    );
+    match h.placement {
+        Some([x0, dx, y0, dy]) => println!(
+            "placement     upper-left texel centre ({x0}, {y0}), texels {dx} x {dy} in the terrain's CRS units"
+        ),
+        None => println!("placement     none: stretched over the DEM it is draped on"),
+    }
+    println!("size          {}", fmt_bytes(h.file_len()));
     Ok(ExitCode::SUCCESS)
 }

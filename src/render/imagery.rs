@@ -99,11 +99,10 @@ impl Imagery {
         if let Ok((w, h)) = reader()?.into_dimensions() {
             let bytes = 4 * w as u64 * h as u64;
             if bytes > WHOLE_MAX_BYTES {
+                let (mib, max_mib) = (bytes as f64 / (1u64 << 20) as f64, WHOLE_MAX_BYTES >> 20);
                 return Err(bad(format!(
-                    "a {w} x {h} image takes {} decoded, more than the {} an image held whole may; cut it once \
-                     with `relief imagery {} OUT.rimg` and drape OUT.rimg, which is paged",
-                    format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64),
-                    format!("{} MiB", WHOLE_MAX_BYTES >> 20),
+                    "a {w} x {h} image takes {mib:.1} MiB decoded, more than the {max_mib} MiB an image held \
+                     whole may; cut it once with `relief imagery {} OUT.rimg` and drape OUT.rimg, which is paged",
                     path.display()
                 )));
             }
@@ -132,12 +131,7 @@ impl Imagery {
 
     #[cfg(not(feature = "gdal"))]
     fn through_gdal(path: &Path) -> Result<Imagery> {
-        Err(Error::BadDem {
-            path: path.into(),
-            problem: "not a PNG or JPEG image; other imagery (GeoTIFF, …) needs GDAL: build relief with \
-                      `--features gdal`"
-                .into(),
-        })
+        Err(no_gdal(path))
     }
 
     fn whole(path: &Path, image: image::RgbaImage, placement: Option<[f64; 4]>) -> Imagery {
@@ -420,10 +414,52 @@ impl GpuImagery {
     }
 }
 
+/// [`make_tiles`] of a raster GDAL reads: read 256 rows at a time into scratch.
+#[cfg(feature = "gdal")]
+fn tiles_through_gdal(
+    path: &Path,
+    out: &Path,
+    scratch_dir: &Path,
+    progress: crate::sys::progress::Progress,
+) -> Result<crate::format::imagery::TilingReport> {
+    let reader = relief_core::dem::RgbaReader::open(path)?;
+    let (w, h) = (reader.width, reader.height);
+    let mut map = crate::sys::scratch::ScratchMap::new(scratch_dir, 4 * w as u64 * h as u64)?;
+    {
+        let texels: &mut [[u8; 4]] = map.slice_mut();
+        for (k, rows) in texels.chunks_mut(256 * w as usize).enumerate() {
+            crate::sys::cancel::check()?;
+            reader.read_rows(256 * k as u32, rows)?;
+        }
+    }
+    let placement = Imagery::world_file_placement(path)?.or(reader.placement);
+    crate::format::imagery::write(out, map.slice(), w, h, placement, scratch_dir, progress)
+}
+
+#[cfg(not(feature = "gdal"))]
+fn tiles_through_gdal(
+    path: &Path,
+    _out: &Path,
+    _scratch_dir: &Path,
+    _progress: crate::sys::progress::Progress,
+) -> Result<crate::format::imagery::TilingReport> {
+    Err(no_gdal(path))
+}
+
+/// What a build without GDAL says of imagery it cannot decode.
+#[cfg(not(feature = "gdal"))]
+fn no_gdal(path: &Path) -> Error {
+    Error::BadDem {
+        path: path.into(),
+        problem: "not a PNG or JPEG image; other imagery (GeoTIFF, …) needs GDAL: build relief with `--features gdal`"
+            .into(),
+    }
+}
+
 /// Makes the imagery tile file `out` of the image at `path` (what `--imagery` reads, placed by its
 /// world file or geotransform, else spanning the DEM). PNG and JPEG are decoded straight into a
-/// scratch file in `scratch_dir` (paged by the kernel, not held in memory); other rasters, read
-/// through GDAL, are decoded whole first.
+/// scratch file in `scratch_dir` (paged by the kernel, not held in memory); other rasters (builds
+/// with GDAL) are read into it 256 rows at a time.
 pub fn make_tiles(
     path: &Path,
     out: &Path,
@@ -439,10 +475,7 @@ pub fn make_tiles(
         .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
         .map_err(|e| Error::io(path, e))?;
     if !(magic == *b"\x89PNG" || magic[..3] == [0xff, 0xd8, 0xff]) {
-        let img = Imagery::open(path)?;
-        let image = img.image().expect("decoded");
-        let texels: &[[u8; 4]] = bytemuck::cast_slice(image.as_raw());
-        return crate::format::imagery::write(out, texels, img.width, img.height, img.placement, scratch_dir, progress);
+        return tiles_through_gdal(path, out, scratch_dir, progress);
     }
     use image::ImageDecoder;
     let mut reader = image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;

@@ -377,7 +377,7 @@ impl<S: Scene> ApplicationHandler for App<S> {
     fn window_event(&mut self, event_loop: &ActiveEventLoop, _id: WindowId, event: WindowEvent) {
         let Some(s) = self.shell.as_mut() else { return };
         let scene = &mut self.scene;
-        let consumed = s.to_panel(&event);
+        let consumed = s.offer_panel(&event);
         match event {
             WindowEvent::CloseRequested => event_loop.exit(),
             WindowEvent::Resized(size) => {
@@ -453,7 +453,7 @@ impl<S: Scene> ApplicationHandler for App<S> {
 impl Shell {
     /// Hands a window event to the panel (now, or after the next frame: [`PanelInput`]); returns
     /// whether the panel takes it.
-    fn to_panel(&mut self, event: &WindowEvent) -> bool {
+    fn offer_panel(&mut self, event: &WindowEvent) -> bool {
         if !self.panel_input.offer(event) {
             return self.egui_ctx.egui_wants_pointer_input();
         }

@@ -60,6 +60,8 @@ fn every_json_output_is_strict_json() {
     let zurich = dem("zurich_25m_i16.tif").display().to_string();
     let bunny = mesh("bunny.off").display().to_string();
     let (t, p, mp, rmn, rpg) = (i.s("z.relief"), i.s("p.json"), i.s("mp.json"), i.s("b.rmn"), i.s("b.rpg"));
+    let earth = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/imagery/earth_2048.jpg").display().to_string();
+    let rimg = i.s("earth.rimg");
     let commands: Vec<Vec<String>> = [
         vec!["convert", &zurich, &t, "--quiet", "--json"],
         vec!["info", &t, "--json"],
@@ -119,6 +121,9 @@ fn every_json_output_is_strict_json() {
         vec!["mesh", "fly", &rmn, "--path", &mp, "--no-render", "--json", "--quiet"],
         vec!["pages", "build", &bunny, &rpg, "--json", "--quiet"],
         vec!["pages", "fly", &rpg, "--path", &mp, "--no-render", "--json", "--quiet"],
+        vec!["imagery", &earth, &rimg, "--json", "--quiet"],
+        vec!["info", &rimg, "--json"],
+        vec!["verify", &rimg, "--json"],
     ]
     .into_iter()
     .map(|c| c.into_iter().map(String::from).collect())

@@ -32,6 +32,22 @@ fn relief_imagery_tiles_the_real_image_and_refuses_bad_input() {
     let whole = relief::render::imagery::Imagery::open(&jpg).unwrap();
     assert_eq!((img.width, img.height, img.placement), (2048, 1024, whole.placement));
 
+    // `verify` checks a tile file's payload; a changed texel is one line naming the file.
+    let o = relief().arg("verify").arg(&out).output().unwrap();
+    assert!(
+        o.status.success() && String::from_utf8_lossy(&o.stdout).contains("ok (69 tiles"),
+        "{}",
+        common::stderr_of(&o)
+    );
+    let mut bytes = std::fs::read(&out).unwrap();
+    bytes[4096 + 3 * 262_144 + 77] ^= 1;
+    let damaged = d.join("damaged.rimg");
+    std::fs::write(&damaged, &bytes).unwrap();
+    fails_with(
+        &[OsStr::new("verify"), damaged.as_os_str()],
+        "damaged.rimg: imagery tile file: payload checksum mismatch",
+    );
+    std::fs::remove_file(&damaged).unwrap();
     let junk = d.join("junk.png");
     std::fs::write(&junk, b"\x89PNG not really").unwrap();
     let bad_out = d.join("bad.rimg");

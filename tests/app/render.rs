@@ -525,6 +525,32 @@ fn geotiff_imagery_is_placed_by_its_geotransform() {
     assert!(diff < 2.0, "mean difference {diff} levels");
     let t = terrain("etopo20_world.tif");
     assert_eq!(a.uv_of_grid(t.header()).unwrap(), b.uv_of_grid(t.header()).unwrap());
+    // Tiled through GDAL, 256 rows at a time: the JPEG's tile file, placed alike, every tile
+    // within the decoders' rounding.
+    let (from_jpg, from_tif) = (dir.path().join("j.rimg"), dir.path().join("t.rimg"));
+    let make = |src: &Path, out: &Path| {
+        relief::render::imagery::make_tiles(src, out, dir.path(), Progress::hidden()).unwrap();
+        relief::format::imagery::ImageryFile::open(out, relief::pager::Access::Map).unwrap()
+    };
+    let (tj, tt) = (make(&jpg, &from_jpg), make(&tif, &from_tif));
+    let (hj, ht) = (tj.header(), tt.header());
+    assert_eq!((hj.width, hj.height, hj.tiles), (ht.width, ht.height, ht.tiles));
+    let (pj, pt) = (hj.placement.unwrap(), ht.placement.unwrap());
+    assert!((0..4).all(|k| (pj[k] - pt[k]).abs() < 1e-9), "{pj:?} {pt:?}");
+    let side = tj.grid().slot_side() as usize;
+    let (mut x, mut y) = (vec![0u32; side * side], vec![0u32; side * side]);
+    for key in 0..tj.grid().tiles() {
+        tj.read_tile(key, &mut x).unwrap();
+        tt.read_tile(key, &mut y).unwrap();
+        let sum: f64 = x
+            .iter()
+            .zip(&y)
+            .flat_map(|(p, q)| (0..4).map(move |c| ((p >> (8 * c)) & 255) as f64 - ((q >> (8 * c)) & 255) as f64))
+            .map(f64::abs)
+            .sum();
+        let mean = sum / (4 * side * side) as f64;
+        assert!(mean < 2.0, "tile {key}: mean difference {mean} levels");
+    }
 }
 
 /// Paged imagery: the draped golden view drawn from an imagery tile file of the same JPEG

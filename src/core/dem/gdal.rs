@@ -280,30 +280,69 @@ impl DemSource for GdalSource {
 /// placement where it is north up: (x of the upper-left pixel's centre, pixel width, y of that
 /// centre, pixel height), in its CRS units.
 pub fn read_rgba(path: &Path) -> Result<RgbaRaster> {
-    let dataset = open_dataset(path)?;
-    let bands = dataset.raster_count();
-    if bands == 0 {
-        return Err(Error::bad_dem(path, "GDAL finds no raster band in it"));
+    let reader = RgbaReader::open(path)?;
+    let (w, h) = (reader.width as usize, reader.height as usize);
+    if (w as u64) * (h as u64) > 1 << 30 {
+        return Err(Error::bad_dem(path, format!("{w} x {h} pixels: over 2^30 pixels to hold whole")));
     }
-    let (w, h) = dataset.raster_size();
-    if w == 0 || h == 0 || (w as u64) * (h as u64) > 1 << 30 {
-        return Err(Error::bad_dem(path, format!("{w} x {h} pixels: empty, or over 2^30 pixels to hold whole")));
-    }
-    let mut rgba = vec![255u8; w * h * 4];
-    let mut plane = vec![0u8; w * h];
-    for c in 0..3 {
-        let band = dataset.rasterband(if bands >= 3 { c + 1 } else { 1 }).map_err(|e| gdal_error(path, e))?;
-        band.read_into_slice((0, 0), (w, h), (w, h), &mut plane, None).map_err(|e| gdal_error(path, e))?;
-        for (k, v) in plane.iter().enumerate() {
-            rgba[4 * k + c] = *v;
+    let mut rgba = vec![[255u8; 4]; w * h];
+    reader.read_rows(0, &mut rgba)?;
+    Ok(RgbaRaster { width: w as u32, height: h as u32, rgba: rgba.into_flattened(), placement: reader.placement })
+}
+
+/// An image through GDAL read a band of rows at a time (what [`read_rgba`] reads whole), for
+/// images larger than memory.
+pub struct RgbaReader {
+    path: std::path::PathBuf,
+    dataset: Dataset,
+    bands: usize,
+    pub width: u32,
+    pub height: u32,
+    /// As [`RgbaRaster::placement`].
+    pub placement: Option<[f64; 4]>,
+}
+
+impl RgbaReader {
+    pub fn open(path: &Path) -> Result<RgbaReader> {
+        let dataset = open_dataset(path)?;
+        let bands = dataset.raster_count();
+        if bands == 0 {
+            return Err(Error::bad_dem(path, "GDAL finds no raster band in it"));
         }
+        let (w, h) = dataset.raster_size();
+        if w == 0 || h == 0 || w > u32::MAX as usize || h > u32::MAX as usize {
+            return Err(Error::bad_dem(path, format!("{w} x {h} pixels")));
+        }
+        let placement = dataset
+            .geo_transform()
+            .ok()
+            .filter(|t| t[2] == 0.0 && t[4] == 0.0 && t[1] > 0.0 && t[5] < 0.0)
+            .map(|t| [t[0] + 0.5 * t[1], t[1], t[3] + 0.5 * t[5], -t[5]]);
+        Ok(RgbaReader { path: path.into(), dataset, bands, width: w as u32, height: h as u32, placement })
     }
-    let placement = dataset
-        .geo_transform()
-        .ok()
-        .filter(|t| t[2] == 0.0 && t[4] == 0.0 && t[1] > 0.0 && t[5] < 0.0)
-        .map(|t| [t[0] + 0.5 * t[1], t[1], t[3] + 0.5 * t[5], -t[5]]);
-    Ok(RgbaRaster { width: w as u32, height: h as u32, rgba, placement })
+
+    /// Rows `y0 ..` (as many as `out` holds whole rows of) as RGBA, alpha 255.
+    pub fn read_rows(&self, y0: u32, out: &mut [[u8; 4]]) -> Result<()> {
+        let w = self.width as usize;
+        let rows = out.len() / w;
+        if rows == 0 || y0 as usize + rows > self.height as usize {
+            return Err(Error::bad_dem(&self.path, format!("rows {y0}..{} of {}", y0 as usize + rows, self.height)));
+        }
+        let mut plane = vec![0u8; w * rows];
+        for c in 0..3 {
+            let band = self
+                .dataset
+                .rasterband(if self.bands >= 3 { c + 1 } else { 1 })
+                .map_err(|e| gdal_error(&self.path, e))?;
+            band.read_into_slice((0, y0 as isize), (w, rows), (w, rows), &mut plane, None)
+                .map_err(|e| gdal_error(&self.path, e))?;
+            for (px, v) in out.iter_mut().zip(&plane) {
+                px[c] = *v;
+                px[3] = 255;
+            }
+        }
+        Ok(())
+    }
 }
 
 /// What [`read_rgba`] reads.

@@ -11,7 +11,7 @@ mod exr;
 #[cfg(feature = "gdal")]
 mod gdal;
 #[cfg(feature = "gdal")]
-pub use gdal::{read_rgba, RgbaRaster};
+pub use gdal::{read_rgba, RgbaRaster, RgbaReader};
 mod geotiff;
 mod hgt;
 mod mosaic;

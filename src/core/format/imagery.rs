@@ -159,7 +159,13 @@ pub struct ImageryHeader {
     /// texel sizes, positive; rows go south). `None`: the image spans the DEM it is draped on.
     pub placement: Option<[f64; 4]>,
     pub tiles: u64,
+    /// XXH3-64 of the tiles (in JSON as 16 hex digits, as terrain files' are).
+    #[serde(serialize_with = "hex64")]
     pub payload_checksum: u64,
+}
+
+fn hex64<S: serde::Serializer>(v: &u64, s: S) -> std::result::Result<S::Ok, S::Error> {
+    s.serialize_str(&format!("{v:016x}"))
 }
 
 impl ImageryHeader {
