@@ -1,8 +1,12 @@
-//! The GPU height cache's CPU side: the heights of a terrain too large for GPU memory as a pool of
-//! fixed-size tiles at several resolutions (a quadtree of levels, as in virtual texturing and
-//! clipmaps), the tiles a strip wants, which of them are resident, and the indirection table the
-//! shaders read. GPU-free: the renderer (`render::height_cache`) owns the textures and writes what
-//! [`HeightCache::frame`] hands it. ARCHITECTURE.md, "GPU height cache", gives the reasons.
+//! The GPU tile caches' CPU side: data too large for GPU memory as a pool of fixed-size tiles at
+//! several resolutions (a quadtree of levels, as in virtual texturing and clipmaps), the tiles a
+//! strip wants, which of them are resident, and the indirection table the shaders read. One
+//! mechanism, [`TileCache`], over two [`TileSet`]s: a terrain's heights ([`HeightCache`], below)
+//! and draped imagery from an imagery tile file ([`ImageryTiles`]: the same levels, slots and
+//! table, RGBA texels, each vertex wanting the level whose texels project to about a pixel).
+//! GPU-free: the renderer (`render::height_cache`) owns the textures and writes what
+//! [`TileCache::frame`] hands it. ARCHITECTURE.md, "GPU height cache" and "Paged imagery", gives
+//! the reasons. For heights:
 //!
 //! - **Levels.** Level `k` holds every `2^k`-th post of the `(2^n + 1)²` grid (post `i` of level
 //!   `k` is post `i · 2^k` of the grid), cut into tiles of `T × T` cells (`T` a power of two). The

@@ -9,6 +9,7 @@ use crate::error::Result;
 use crate::format::terrain::TerrainFile;
 use crate::heightcache::{CacheBudget, HeightCache, HeightCacheStats, TerrainTiles, TileCache, TileSet, WantView};
 use crate::refine::{Morph, StripVertex};
+use crate::render::heights::{texture_layers, write_layer_bytes};
 
 /// GPU memory for heights when none is given: the whole grid stays resident up to this, else the
 /// cache takes this much (bounded by the adapter's texture limits).
@@ -51,21 +52,7 @@ where
         let side = cache.set().slot_side();
         let label =
             if format == wgpu::TextureFormat::R32Float { "relief height cache" } else { "relief imagery cache" };
-        let texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some(label),
-            size: wgpu::Extent3d { width: side, height: side, depth_or_array_layers: cache.slots() },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
-        let view = texture.create_view(&wgpu::TextureViewDescriptor {
-            label: Some(label),
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
+        let (texture, view) = texture_layers(device, label, side, cache.slots(), format);
         let table = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("relief tile table"),
             size: cache.set().table_bytes(),
@@ -85,26 +72,12 @@ where
     pub fn sync(&mut self, queue: &wgpu::Queue) -> Result<u64> {
         let started = std::time::Instant::now();
         let side = self.cache.set().slot_side();
-        let texel = std::mem::size_of::<S::Texel>() as u32;
         let mut bytes = 0u64;
         let (tiles, table) = self.cache.frame()?;
         for t in &tiles {
-            queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture: &self.texture,
-                    mip_level: 0,
-                    origin: wgpu::Origin3d { x: 0, y: 0, z: t.slot },
-                    aspect: wgpu::TextureAspect::All,
-                },
-                bytemuck::cast_slice(t.texels),
-                wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(texel * side),
-                    rows_per_image: Some(side),
-                },
-                wgpu::Extent3d { width: side, height: side, depth_or_array_layers: 1 },
-            );
-            bytes += texel as u64 * t.texels.len() as u64;
+            let texels: &[u8] = bytemuck::cast_slice(t.texels);
+            write_layer_bytes(queue, &self.texture, t.slot, side, texels);
+            bytes += texels.len() as u64;
         }
         if let Some(table) = table {
             let data: &[u8] = bytemuck::cast_slice(table);

@@ -107,15 +107,27 @@ pub fn fill_tile(records: &[Record], terrain: &TerrainFile, tiling: &HeightTilin
 }
 
 /// An `R32Float` texture array of `layers` square layers of `side` texels, written with
-/// [`write_layer`], and its array view: the resident grid's tiles and the height cache's slots.
+/// [`write_layer`], and its array view: the resident grid's tiles.
 pub fn height_layers(device: &wgpu::Device, label: &str, side: u32, layers: u32) -> (wgpu::Texture, wgpu::TextureView) {
+    texture_layers(device, label, side, layers, wgpu::TextureFormat::R32Float)
+}
+
+/// A texture array of `layers` square layers of `side` texels of `format` (one mip level) and its
+/// array view: the resident grid's tiles, the tile caches' slots.
+pub fn texture_layers(
+    device: &wgpu::Device,
+    label: &str,
+    side: u32,
+    layers: u32,
+    format: wgpu::TextureFormat,
+) -> (wgpu::Texture, wgpu::TextureView) {
     let texture = device.create_texture(&wgpu::TextureDescriptor {
         label: Some(label),
         size: wgpu::Extent3d { width: side, height: side, depth_or_array_layers: layers },
         mip_level_count: 1,
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
-        format: wgpu::TextureFormat::R32Float,
+        format,
         usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
     });
@@ -129,6 +141,13 @@ pub fn height_layers(device: &wgpu::Device, label: &str, side: u32, layers: u32)
 
 /// Writes one layer (`side²` heights, row-major) of a [`height_layers`] texture.
 pub fn write_layer(queue: &wgpu::Queue, texture: &wgpu::Texture, layer: u32, side: u32, heights: &[f32]) {
+    write_layer_bytes(queue, texture, layer, side, bytemuck::cast_slice(heights));
+}
+
+/// Writes one layer (`side²` texels, row-major, `texels.len() / side²` bytes each) of a
+/// [`texture_layers`] texture.
+pub fn write_layer_bytes(queue: &wgpu::Queue, texture: &wgpu::Texture, layer: u32, side: u32, texels: &[u8]) {
+    let texel_bytes = (texels.len() / (side as usize * side as usize)) as u32;
     queue.write_texture(
         wgpu::TexelCopyTextureInfo {
             texture,
@@ -136,8 +155,8 @@ pub fn write_layer(queue: &wgpu::Queue, texture: &wgpu::Texture, layer: u32, sid
             origin: wgpu::Origin3d { x: 0, y: 0, z: layer },
             aspect: wgpu::TextureAspect::All,
         },
-        bytemuck::cast_slice(heights),
-        wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * side), rows_per_image: Some(side) },
+        texels,
+        wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(texel_bytes * side), rows_per_image: Some(side) },
         wgpu::Extent3d { width: side, height: side, depth_or_array_layers: 1 },
     );
 }
