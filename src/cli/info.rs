@@ -18,7 +18,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    if relief::format::sniff(&a.file)? == Some(relief::format::FileKind::Imagery) {
+    let local = !relief::pager::remote::is_remote(&a.file);
+    if local && relief::format::sniff(&a.file)? == Some(relief::format::FileKind::Imagery) {
         return imagery_info(&a);
     }
     let f = TerrainFile::open(&a.file)?;

@@ -20,7 +20,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    if relief::format::sniff(&a.file)? == Some(relief::format::FileKind::Imagery) {
+    let local = !relief::pager::remote::is_remote(&a.file);
+    if local && relief::format::sniff(&a.file)? == Some(relief::format::FileKind::Imagery) {
         // An imagery tile file: its payload checksum (a mismatch is the error).
         let f = relief::format::imagery::ImageryFile::open(&a.file, relief::pager::Access::Read)?;
         f.verify()?;
