@@ -106,16 +106,23 @@ fn image_sample(p0: vec2<f32>, k0: u32) -> ImageSample {
     return r;
 }
 
-// Paged imagery at level-0 texel p0, `lod` the log2 of level-0 texels per pixel: the finest
-// resident level at or above it, fading in over the next coarser one.
+// Paged imagery at level-0 texel p0, `lod` the log2 of level-0 texels per pixel: trilinear
+// between the levels around `lod` (as the whole image's mip-mapped sampler is), from the finest
+// resident tiles at or above them, a new tile fading in over the next coarser one.
 fn paged_imagery(p0: vec2<f32>, lod: f32) -> vec3<f32> {
     let levels = u32(frame.imagery_pages.w);
-    let fine = image_sample(p0, u32(clamp(lod, 0.0, f32(levels - 1u))));
-    if (fine.fade < 1.0 && fine.level + 1u < levels) {
-        let coarse = image_sample(p0, fine.level + 1u);
-        return mix(coarse.rgb, fine.rgb, fine.fade);
+    let l = clamp(lod, 0.0, f32(levels - 1u));
+    let k = u32(floor(l));
+    let fine = image_sample(p0, k);
+    var w = fine.fade;
+    if (fine.level == k) {
+        w = w * (1.0 - (l - floor(l)));
     }
-    return fine.rgb;
+    if (w >= 1.0 || fine.level + 1u >= levels) {
+        return fine.rgb;
+    }
+    let coarse = image_sample(p0, fine.level + 1u);
+    return mix(coarse.rgb, fine.rgb, w);
 }
 
 // The draped image's colour at a grid position (linear RGB) and 1 where it covers it, else 0.

@@ -27,6 +27,20 @@ fn relief_imagery_tiles_the_real_image_and_refuses_bad_input() {
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!((j["width"].as_u64(), j["height"].as_u64(), j["levels"].as_u64()), (Some(2048), Some(1024), Some(5)));
     assert_eq!(j["file_bytes"].as_u64(), Some(std::fs::metadata(&out).unwrap().len()));
+    // A world image wraps: the west edge's tiles border on the east edge's texels.
+    let file = relief::format::imagery::ImageryFile::open(&out, relief::pager::Access::Map).unwrap();
+    assert!(file.header().wraps);
+    let g = file.grid().clone();
+    let side = g.slot_side() as usize;
+    let last = g.levels[0].tiles_x - 1;
+    let (mut west, mut east) = (vec![0u32; side * side], vec![0u32; side * side]);
+    file.read_tile(g.key(0, 0, 0), &mut west).unwrap();
+    file.read_tile(g.key(0, last, 0), &mut east).unwrap();
+    // West tile texel i = 0 is level texel −1 = 2047; in the east tile that is i = 2047 − (last·254 − 1).
+    let i_east = (2047 - (last as usize * 254 - 1)) as usize;
+    for j in 0..side {
+        assert_eq!(west[j * side], east[j * side + i_east], "row {j}");
+    }
     // The world file's placement travels with the tiles.
     let img = relief::render::imagery::Imagery::open(&out).unwrap();
     let whole = relief::render::imagery::Imagery::open(&jpg).unwrap();

@@ -143,6 +143,7 @@ fn imagery_header() -> ImageryHeader {
         tile: 254,
         levels: 3,
         placement: Some([2_600_012.5, 25.0, 1_200_987.5, 25.0]),
+        wraps: false,
         tiles: 11,
         payload_checksum: 0x0123_4567_89ab_cdef,
     }
@@ -335,5 +336,6 @@ fn imagery_header_bytes_are_frozen_and_checked() {
     corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_u32(20, 2), "tiles of 2 texels");
     corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_u32(12, 0), "an image of 0 x 300 texels");
     corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_f64(40, -25.0), "texel sizes must be positive");
-    corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_u32(28, 6), "unknown flags 0x6");
+    corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_u32(28, 5), "unknown flags 0x5");
+    corrupt_field::<ImageryHeader>("golden.rimg", |h| h.put_u32(28, 2), "wraps (flag 2) without a placement");
 }

@@ -12,7 +12,9 @@
 //!     16    4  height of level 0, texels
 //!     20    4  tile texels T (a tile's side without its border; a stored tile is T + 2 a side)
 //!     24    4  levels L (level k is ⌈width / 2^k⌉ × ⌈height / 2^k⌉; level L − 1 is one tile)
-//!     28    4  flags: bit 0, the placement below is given
+//!     28    4  flags: bit 0, the placement below is given; bit 1, the image wraps in x (a
+//!              world image: 360 units, degrees, wide), so tiles' borders and the levels'
+//!              means wrap around its left and right edges
 //!     32   32  placement: x of the upper-left texel's centre, texel width, y of that centre,
 //!              texel height (f64, the image's CRS units, rows going south), as a world file
 //!     64    8  tiles (all levels)
@@ -22,7 +24,7 @@
 //!   4096    -  tiles in key order (level 0 first; within a level, rows of tiles from the top,
 //!              left to right), each (T + 2)² texels of RGBA8 (sRGB), rows from the top. Texel
 //!              (i, j) of tile (tx, ty) is level texel (tx·T − 1 + i, ty·T − 1 + j), clamped to
-//!              the level.
+//!              the level (x wrapped instead where the image wraps).
 //! ```
 //! Level k + 1's texel (i, j) is the rounded mean of level k's texels (2i..2i + 1, 2j..2j + 1),
 //! clamped to level k, so level k's texel i covers level 0's texels `i·2^k .. (i + 1)·2^k` and a
@@ -50,6 +52,7 @@ pub const DEFAULT_TILE_TEXELS: u32 = 254;
 /// The largest image side (2^20 texels: 16 levels of 254-texel tiles at most).
 pub const MAX_SIDE: u32 = 1 << 20;
 const FLAG_PLACED: u32 = 1;
+const FLAG_WRAPS: u32 = 2;
 
 /// One level's size and where its tiles are numbered.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -158,6 +161,8 @@ pub struct ImageryHeader {
     /// As a world file places the image: `[x0, dx, y0, dy]` (centre of the upper-left texel, and
     /// texel sizes, positive; rows go south). `None`: the image spans the DEM it is draped on.
     pub placement: Option<[f64; 4]>,
+    /// The image wraps in x: a world image, its placement 360 units (degrees) wide.
+    pub wraps: bool,
     pub tiles: u64,
     /// XXH3-64 of the tiles (in JSON as 16 hex digits, as terrain files' are).
     #[serde(serialize_with = "hex64")]
@@ -192,7 +197,7 @@ impl Format for ImageryHeader {
                 grid.tiles()
             )));
         }
-        if flags & !FLAG_PLACED != 0 {
+        if flags & !(FLAG_PLACED | FLAG_WRAPS) != 0 {
             return Err(Problem::Corrupt(format!("unknown flags {flags:#x}")));
         }
         let p = [h.f64(32), h.f64(40), h.f64(48), h.f64(56)];
@@ -204,12 +209,16 @@ impl Format for ImageryHeader {
         } else {
             None
         };
+        if flags & FLAG_WRAPS != 0 && placement.is_none() {
+            return Err(Problem::Corrupt("it wraps (flag 2) without a placement".into()));
+        }
         let header = ImageryHeader {
             width,
             height,
             tile,
             levels,
             placement,
+            wraps: flags & FLAG_WRAPS != 0,
             tiles: grid.tiles() as u64,
             payload_checksum: h.u64(72),
         };
@@ -225,7 +234,8 @@ impl Format for ImageryHeader {
         h.put_u32(16, self.height);
         h.put_u32(20, self.tile);
         h.put_u32(24, self.levels);
-        h.put_u32(28, if self.placement.is_some() { FLAG_PLACED } else { 0 });
+        let placed = if self.placement.is_some() { FLAG_PLACED } else { 0 };
+        h.put_u32(28, placed | if self.wraps { FLAG_WRAPS } else { 0 });
         let p = self.placement.unwrap_or([0.0; 4]);
         for (i, v) in p.into_iter().enumerate() {
             h.put_f64(32 + 8 * i, v);
@@ -346,6 +356,8 @@ pub fn write(
             rgba.len()
         )));
     }
+    // A world image (360 units wide: degrees) wraps; renderers wrap it on geographic terrains.
+    let wraps = placement.is_some_and(|[_, dx, _, _]| (width as f64 * dx - 360.0).abs() < 1e-6 * 360.0);
     let tmp = crate::sys::atomic_file::temp_beside(out)?;
     let io = |e: std::io::Error| Error::io(out, e);
     let mut w = std::io::BufWriter::with_capacity(1 << 20, tmp.as_file());
@@ -361,7 +373,8 @@ pub fn write(
             Some(m) => m.slice(),
         };
         let (lw, lh) = (level.width as i64, level.height as i64);
-        let at = |x: i64, y: i64| texels[(y.clamp(0, lh - 1) * lw + x.clamp(0, lw - 1)) as usize];
+        let x_of = |x: i64| if wraps { x.rem_euclid(lw) } else { x.clamp(0, lw - 1) };
+        let at = |x: i64, y: i64| texels[(y.clamp(0, lh - 1) * lw + x_of(x)) as usize];
         let t = grid.tile as i64;
         for ty in 0..level.tiles_y {
             let row: Vec<Vec<u8>> = (0..level.tiles_x)
@@ -406,6 +419,7 @@ pub fn write(
         tile: grid.tile,
         levels: grid.levels.len() as u32,
         placement,
+        wraps,
         tiles: grid.tiles() as u64,
         payload_checksum: hasher.digest(),
     };
