@@ -322,7 +322,7 @@ impl ImageryFile {
     }
 }
 
-/// What [`write`] made.
+/// What [`write()`] made.
 #[derive(Clone, Debug, Serialize)]
 pub struct TilingReport {
     pub width: u32,
