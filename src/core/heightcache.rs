@@ -436,7 +436,8 @@ pub trait TileSet: Send + Sync + 'static {
     fn header(&self) -> [u32; TABLE_HEADER as usize];
     /// Fills `out` (`slot_side()²` texels, rows first) with tile `key`.
     fn fill(&self, key: u32, out: &mut [Self::Texel]) -> Result<()>;
-    /// The tiles a strip seen from `view` wants, at most `capacity` (see [`plan_wants`]).
+    /// The tiles a strip seen from `view` wants, at most `capacity` (see [`plan_wants`]); runs on
+    /// the loader thread, so reading what the plan needs (a strip's heights) happens there.
     fn plan(
         &self,
         vertices: &[StripVertex],
@@ -444,7 +445,7 @@ pub trait TileSet: Send + Sync + 'static {
         view: &WantView,
         capacity: usize,
         stamp: &mut Vec<u8>,
-    ) -> Wants;
+    ) -> Result<Wants>;
 
     /// GPU bytes of one slot.
     fn slot_bytes(&self) -> u64 {
@@ -480,8 +481,15 @@ impl TileSet for TerrainTiles {
     fn fill(&self, key: u32, out: &mut [f32]) -> Result<()> {
         self.grid.fill(&self.terrain, key, out)
     }
-    fn plan(&self, v: &[StripVertex], h: &[Morph], view: &WantView, capacity: usize, stamp: &mut Vec<u8>) -> Wants {
-        plan_wants(&self.grid, v, h, view, capacity, stamp)
+    fn plan(
+        &self,
+        v: &[StripVertex],
+        h: &[Morph],
+        view: &WantView,
+        capacity: usize,
+        stamp: &mut Vec<u8>,
+    ) -> Result<Wants> {
+        Ok(plan_wants(&self.grid, v, h, view, capacity, stamp))
     }
 }
 
@@ -489,6 +497,9 @@ impl TileSet for TerrainTiles {
 /// wants the level whose texels project to about a pixel where it lies in the image.
 pub struct ImageryTiles {
     pub file: ImageryFile,
+    /// The terrain it is draped on: a strip handed over without its heights has them read from
+    /// here, on the loader thread (the plan's distances need them).
+    pub terrain: Arc<TerrainFile>,
     /// Texture coordinates of grid posts: `u = uv[0] + uv[1]·x`, `v = uv[2] + uv[3]·y` (0..1
     /// over the image, v down).
     pub uv: [f64; 4],
@@ -525,12 +536,26 @@ impl TileSet for ImageryTiles {
     fn fill(&self, key: u32, out: &mut [u32]) -> Result<()> {
         self.file.read_tile(key, out)
     }
-    fn plan(&self, v: &[StripVertex], h: &[Morph], view: &WantView, capacity: usize, stamp: &mut Vec<u8>) -> Wants {
+    fn plan(
+        &self,
+        v: &[StripVertex],
+        h: &[Morph],
+        view: &WantView,
+        capacity: usize,
+        stamp: &mut Vec<u8>,
+    ) -> Result<Wants> {
+        let mut read = Vec::new();
+        let h = if h.len() == v.len() {
+            h
+        } else {
+            exact_heights(&self.terrain, v, &mut read)?;
+            &read
+        };
         let g = self.file.grid();
         // Metres per level-0 texel, in the view's (possibly scaled) scene.
         let texels_per_post = [self.uv[1].abs() * g.width as f64, self.uv[3].abs() * g.height as f64];
         let unit_m = (view.spacing_m[0] / texels_per_post[0]).min(view.spacing_m[1] / texels_per_post[1]);
-        plan_tiles(
+        Ok(plan_tiles(
             g.tiles(),
             g.coarsest_level(),
             |k, px, py| g.tile_at(k, px, py),
@@ -547,7 +572,7 @@ impl TileSet for ImageryTiles {
             |p| self.texel_of(p.x as f64, p.y as f64),
             capacity,
             stamp,
-        )
+        ))
     }
 }
 
@@ -972,7 +997,14 @@ fn load<S: TileSet>(set: &S, link: &Link<S::Texel>, capacity: usize) {
             }
         };
         if let Some(job) = job {
-            let wants = set.plan(&job.vertices, &job.heights, &job.view, capacity, &mut stamp);
+            let wants = match set.plan(&job.vertices, &job.heights, &job.view, capacity, &mut stamp) {
+                Ok(w) => w,
+                Err(e) => {
+                    link.lock().error.get_or_insert(e);
+                    plan.clear();
+                    continue;
+                }
+            };
             for &k in &wants.keys {
                 link.wanted[k as usize].store(job.seq, Ordering::Relaxed);
             }

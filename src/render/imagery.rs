@@ -45,6 +45,17 @@ pub enum Pixels {
     Tiled,
 }
 
+/// Whether `path` starts as a PNG or a JPEG does (`None`: it has fewer than 4 bytes); other
+/// images go to GDAL.
+fn png_or_jpeg(path: &Path) -> Result<Option<bool>> {
+    let mut magic = [0u8; 4];
+    match std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic)) {
+        Ok(()) => Ok(Some(magic == *b"\x89PNG" || magic[..3] == [0xff, 0xd8, 0xff])),
+        Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(None),
+        Err(e) => Err(Error::io(path, e)),
+    }
+}
+
 /// The world file beside `path`, by the conventions GIS tools use.
 fn world_file(path: &Path) -> Option<PathBuf> {
     let ext = path.extension()?.to_str()?.to_ascii_lowercase();
@@ -82,12 +93,8 @@ impl Imagery {
             let (width, height, placement) = (h.width, h.height, h.placement);
             return Ok(Imagery { path: path.into(), width, height, pixels: Pixels::Tiled, placement });
         }
-        let mut magic = [0u8; 4];
-        let head = std::fs::File::open(path)
-            .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
-            .map_err(|e| Error::io(path, e));
-        let is_png_or_jpeg = head.is_ok() && (magic == *b"\x89PNG" || magic[..3] == [0xff, 0xd8, 0xff]);
-        if head.is_ok() && !is_png_or_jpeg {
+        // A file too short to say is left to the decoder to refuse.
+        if let Ok(Some(false)) = png_or_jpeg(path) {
             return Imagery::through_gdal(path);
         }
         let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
@@ -241,8 +248,6 @@ pub struct GpuImagery {
     pub uv: [f32; 4],
     pub params: [f32; 4],
     pub pages: [f32; 4],
-    /// Exact heights of a strip that came without them (paged only: the plan's distances).
-    own_morph: Vec<Morph>,
 }
 
 impl GpuImagery {
@@ -250,7 +255,7 @@ impl GpuImagery {
     /// a cache within `budget` whose coarsest tile is uploaded by the first [`Self::sync`].
     pub fn new(
         gpu: &Gpu,
-        terrain: &TerrainFile,
+        terrain: &Arc<TerrainFile>,
         imagery: Option<&(Arc<Imagery>, f32)>,
         budget: CacheBudget,
     ) -> Result<GpuImagery> {
@@ -276,7 +281,7 @@ impl GpuImagery {
         if let Some((img, _)) = imagery.filter(|(i, _)| matches!(i.pixels, Pixels::Tiled)) {
             let file = ImageryFile::open(&img.path, crate::pager::Access::Map)?;
             let g = file.grid().clone();
-            let set = ImageryTiles { file, uv: uv.map(|v| v as f64), wraps };
+            let set = ImageryTiles { file, terrain: terrain.clone(), uv: uv.map(|v| v as f64), wraps };
             let cache = TileCache::of(set, budget, "imagery")?;
             let pool = GpuTileCache::of(device, cache, wgpu::TextureFormat::Rgba8UnormSrgb)?;
             // Slots carry their borders: never wrap or filter past them.
@@ -297,7 +302,6 @@ impl GpuImagery {
                 uv,
                 params: [on, shade, wraps as u8 as f32, 1.0],
                 pages: [g.width as f32, g.height as f32, g.tile as f32, g.levels.len() as f32],
-                own_morph: Vec::new(),
             });
         }
         let levels = match imagery {
@@ -353,7 +357,6 @@ impl GpuImagery {
             uv,
             params: [on, shade, wraps as u8 as f32, 0.0],
             pages: [w as f32, h as f32, 0.0, 0.0],
-            own_morph: Vec::new(),
         })
     }
 
@@ -368,23 +371,16 @@ impl GpuImagery {
     }
 
     /// The imagery cache's step for a frame: tells the loader about `new_strip` seen from
-    /// `view` (heights from `heights` when they match the strip, else read from `terrain`), then
-    /// writes the finished tiles within the upload budget, never waiting. Returns the bytes sent.
+    /// `view` (its heights, if it has them; the loader reads them otherwise), then writes the
+    /// finished tiles within the upload budget, never waiting. Returns the bytes sent.
     pub fn sync(
         &mut self,
         queue: &wgpu::Queue,
-        terrain: &TerrainFile,
         new_strip: Option<(&[StripVertex], &[Morph])>,
         view: WantView,
     ) -> Result<u64> {
         let Some(pool) = &mut self.cache else { return Ok(0) };
         if let Some((vertices, heights)) = new_strip {
-            let heights = if heights.len() == vertices.len() {
-                heights
-            } else {
-                crate::heightcache::exact_heights(terrain, vertices, &mut self.own_morph)?;
-                &self.own_morph
-            };
             pool.want(vertices, heights, view);
         }
         pool.sync(queue)
@@ -470,12 +466,15 @@ pub fn make_tiles(
     if crate::format::sniff(path)? == Some(crate::format::FileKind::Imagery) {
         return Err(bad("is already an imagery tile file".into()));
     }
-    let mut magic = [0u8; 4];
-    std::fs::File::open(path)
-        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic))
-        .map_err(|e| Error::io(path, e))?;
-    if !(magic == *b"\x89PNG" || magic[..3] == [0xff, 0xd8, 0xff]) {
-        return tiles_through_gdal(path, out, scratch_dir, progress);
+    match png_or_jpeg(path)? {
+        Some(true) => {}
+        Some(false) => return tiles_through_gdal(path, out, scratch_dir, progress),
+        None => {
+            return Err(Error::io(
+                path,
+                std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "failed to fill whole buffer"),
+            ))
+        }
     }
     use image::ImageDecoder;
     let mut reader = image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;

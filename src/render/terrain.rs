@@ -162,7 +162,6 @@ enum Heights {
 
 /// Renders strips of one terrain.
 pub struct TerrainRenderer {
-    terrain: Arc<TerrainFile>,
     heights: Heights,
     /// Exact heights computed here for a strip that came without them (cache only).
     own_morph: Vec<Morph>,
@@ -482,7 +481,6 @@ impl TerrainRenderer {
         let vertices = VertexBuffer::new(device, "relief strip", 1 << 20);
         let morph = VertexBuffer::new(device, "relief strip morph", 1 << 20);
         Ok(TerrainRenderer {
-            terrain: terrain.clone(),
             heights,
             own_morph: Vec::new(),
             shade,
@@ -583,7 +581,7 @@ impl TerrainRenderer {
                 (_, None) => &[],
             };
             let strip = new_strip.map(|s| (&s.vertices[..], heights));
-            bytes += self.imagery.sync(&gpu.queue, &self.terrain, strip, view)?;
+            bytes += self.imagery.sync(&gpu.queue, strip, view)?;
         }
         Ok(bytes)
     }

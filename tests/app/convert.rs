@@ -3,7 +3,7 @@
 
 use crate::common;
 
-use common::{dem, REAL_DEMS};
+use common::{dem, fails_with, REAL_DEMS};
 use std::path::Path;
 use std::process::Command;
 
@@ -155,17 +155,6 @@ fn cli_convert_info_verify_round_trip() {
     let j: serde_json::Value = serde_json::from_slice(&v.stdout).unwrap();
     assert_eq!(j["ok"], true);
     assert_eq!(listing(dir.path()), vec!["z.relief"]);
-}
-
-/// Runs `relief ARGS…`, expects failure with one stderr line containing `needle`.
-fn fails_with(args: &[&std::ffi::OsStr], needle: &str) -> String {
-    let out = relief().args(args).output().unwrap();
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!out.status.success(), "expected failure for {args:?}");
-    assert_eq!(err.trim_end().lines().count(), 1, "one line expected: {err}");
-    assert!(err.contains(needle), "'{needle}' not in: {err}");
-    assert!(!err.contains("panicked"), "{err}");
-    err
 }
 
 #[test]

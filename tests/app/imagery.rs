@@ -5,16 +5,7 @@
 use std::ffi::OsStr;
 use std::path::Path;
 
-use crate::common::{self, relief};
-
-fn fails_with(args: &[&OsStr], needle: &str) {
-    let out = relief().args(args).output().unwrap();
-    let err = common::stderr_of(&out);
-    assert!(!out.status.success(), "expected failure for {args:?}");
-    assert_eq!(err.trim_end().lines().count(), 1, "one line expected: {err}");
-    assert!(err.contains(needle), "'{needle}' not in: {err}");
-    assert!(!err.contains("panicked"), "{err}");
-}
+use crate::common::{self, fails_with, relief};
 
 #[test]
 fn relief_imagery_tiles_the_real_image_and_refuses_bad_input() {

@@ -136,6 +136,17 @@ pub fn stderr_of(o: &std::process::Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
+/// Runs `relief ARGS…`, expects failure with one stderr line containing `needle`; returns it.
+pub fn fails_with(args: &[&std::ffi::OsStr], needle: &str) -> String {
+    let out = relief().args(args).output().unwrap();
+    let err = stderr_of(&out);
+    assert!(!out.status.success(), "expected failure for {args:?}");
+    assert_eq!(err.trim_end().lines().count(), 1, "one line expected: {err}");
+    assert!(err.contains(needle), "'{needle}' not in: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
 /// Runs `relief path KIND FILE --frames FRAMES --out OUT` (a camera path about FILE's box) and
 /// asserts that it succeeded.
 pub fn make_path(kind: &str, file: &Path, frames: u32, out: &Path) {

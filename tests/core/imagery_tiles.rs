@@ -142,7 +142,8 @@ fn the_imagery_cache_pages_what_a_strip_wants_within_its_slots() {
     let [_, _, x1, y1] = t.header().valid_window;
     let (sx, sy) = ((x1 - 1) as f64, (y1 - 1) as f64);
     let uv = [0.0, 1.0 / sx, 1.0, -1.0 / sy];
-    let set = ImageryTiles { file: ImageryFile::open(&tiles, Access::Read).unwrap(), uv, wraps: false };
+    let file = ImageryFile::open(&tiles, Access::Read).unwrap();
+    let set = ImageryTiles { file, terrain: t.clone(), uv, wraps: false };
     let slot_bytes = set.slot_bytes();
     let grid = set.file.grid().clone();
     // Room for 4 of the image's 14 tiles (plus the table), 2 tiles uploaded a frame.
