@@ -61,7 +61,7 @@ fn bench(c: &mut Criterion) {
     let offset = file.header().payload_offset;
     let mut refiner = Refiner::new(1).expect("refiner");
     let mut strip = Strip::new();
-    let counters = refiner.refine_file(&file, &camera, &options, &mut strip).unwrap();
+    let counters = refiner.refine_file_counted(&file, &camera, &options, &mut strip).unwrap();
     group.throughput(Throughput::Elements(counters.visited));
     group.bench_function("refine_plain", |b| {
         b.iter(|| refiner.refine_file(&file, &camera, &options, &mut strip).unwrap())

@@ -43,13 +43,18 @@ fn instrumented_refinement_gives_the_plain_strip() {
         for k in 0..path.frames.len() {
             let cam = path.camera(k, 60.0, 1280, 720).unwrap();
             let (mut a, mut b, mut c) = (Strip::new(), Strip::new(), Strip::new());
-            let ca = refiner.refine_file(&t, &cam, &options, &mut a).unwrap();
-            let cb = refiner.refine_source(&t, &traced, &cam, &options, &mut b);
-            let cc = refiner.refine_source(&t, &untraced, &cam, &options, &mut c);
+            let ca = refiner.refine_file_counted(&t, &cam, &options, &mut a).unwrap();
+            let cb = refiner.refine_source_counted(&t, &traced, &cam, &options, &mut b);
+            let cc = refiner.refine_source_counted(&t, &untraced, &cam, &options, &mut c);
             assert_eq!(a.vertices, b.vertices, "{kind} frame {k}");
             assert_eq!(a.vertices, c.vertices, "{kind} frame {k}");
             assert_eq!((ca.visited, ca.culled), (cb.visited, cb.culled));
             assert_eq!((ca.visited, ca.culled), (cc.visited, cc.culled));
+            assert!(ca.visited > 0, "{kind} frame {k}: the counted pass counts");
+            // The uncounted loop (a separate monomorph) makes the same strip.
+            let mut d = Strip::new();
+            refiner.refine_file(&t, &cam, &options, &mut d).unwrap();
+            assert_eq!(a.vertices, d.vertices, "{kind} frame {k}: counted and uncounted");
         }
         assert!(trace.stats().misses > 0);
     }

@@ -137,9 +137,9 @@ fn threaded_refinement_gives_the_single_threaded_mesh() {
         if k % 3 == 0 {
             options.morph_ratio = Some(2.0);
         }
-        let ca = single.refine_file(file, &camera, &options, &mut a).unwrap();
+        let ca = single.refine_file_counted(file, &camera, &options, &mut a).unwrap();
         let pool = &mut pools[k % 3];
-        let cb = pool.refine_file(file, &camera, &options, &mut b).unwrap();
+        let cb = pool.refine_file_counted(file, &camera, &options, &mut b).unwrap();
         assert_eq!(ca, cb, "camera {k}: same vertices visited and culled");
         assert_eq!(mesh(&a), mesh(&b), "camera {k} with {} threads", pool.threads());
         let c = check(file, &camera, &options, &a);

@@ -18,7 +18,7 @@ use crate::mesh::Bounds;
 use crate::pager::remote::RemoteStats;
 use crate::pager::ReadStats;
 use crate::refine::progressive::{Progressive, ProgressiveFrame, ProgressiveOptions};
-use crate::refine::{RefineCounters, RefineOptions, Refiner, Strip};
+use crate::refine::{RefineOptions, Refiner, Strip};
 use crate::sys::mem;
 
 /// A one-slot mailbox: `put` replaces, `take` never blocks, `wait` blocks until a value arrives or
@@ -90,7 +90,6 @@ pub struct RefineJob {
 #[derive(Debug)]
 pub struct Refined {
     pub strip: Strip,
-    pub counters: RefineCounters,
     pub refine_ms: f64,
     pub job: RefineJob,
     /// Page faults (major, minor) of the process during this refinement.
@@ -130,26 +129,20 @@ pub fn refine_once(engine: &mut Engine, terrain: &TerrainFile, job: RefineJob, m
     let result = match &mut engine.progressive {
         Some(p) => p.refine(&mut engine.refiner, &job.camera, &job.options, &mut strip).map(|f| {
             progress = Some(f);
-            f.counters
         }),
         None => {
             let mut result = engine.refiner.refine_file(terrain, &job.camera, &job.options, &mut strip);
             if job.options.heights && job.options.morph_ratio.is_none() {
-                result = result.and_then(|c| {
-                    crate::heightcache::exact_heights(terrain, &strip.vertices, &mut strip.morph)?;
-                    Ok(c)
-                });
+                result = result
+                    .and_then(|()| crate::heightcache::exact_heights(terrain, &strip.vertices, &mut strip.morph));
             }
             result
         }
     };
-    let (counters, error) = match result {
-        Ok(c) => (c, None),
-        Err(e) => (RefineCounters::default(), Some(e)),
-    };
+    let error = result.err();
     let refine_ms = t0.elapsed().as_secs_f64() * 1e3;
     let faults1 = mem::page_faults();
-    Refined { strip, counters, refine_ms, job, faults: (faults1.0 - faults0.0, faults1.1 - faults0.1), error, progress }
+    Refined { strip, refine_ms, job, faults: (faults1.0 - faults0.0, faults1.1 - faults0.1), error, progress }
 }
 
 /// Refinement on its own thread: give it the newest camera with [`Self::request`], collect the

@@ -26,8 +26,8 @@ pub mod records;
 pub mod report;
 mod walk;
 
-pub use records::{MappedRecords, PagerRecords, RecordSource};
-use walk::{probe_vertex, Carry, MorphTri, NoMorph, Walk};
+pub use records::{MappedRecords, PagerRecords, RecordSlice, RecordSource};
+use walk::{probe_vertex, Carry, Counted, MorphTri, NoMorph, Tally, Uncounted, Walk};
 
 use glam::DVec3;
 use serde::Serialize;
@@ -598,8 +598,29 @@ impl Refiner {
 
     /// Refines a terrain file for `camera`, writing the strip into `strip`: in place when the
     /// file is mapped (through [`MappedRecords`] when its pager has an observer), else through
-    /// its pager.
+    /// its pager. Counts nothing; [`Self::refine_file_counted`] counts.
     pub fn refine_file(
+        &mut self,
+        terrain: &TerrainFile,
+        camera: &Camera,
+        options: &RefineOptions,
+        strip: &mut Strip,
+    ) -> crate::Result<()> {
+        self.file_tally::<Uncounted>(terrain, camera, options, strip).map(drop)
+    }
+
+    /// [`Self::refine_file`], counting the vertices tested and culled.
+    pub fn refine_file_counted(
+        &mut self,
+        terrain: &TerrainFile,
+        camera: &Camera,
+        options: &RefineOptions,
+        strip: &mut Strip,
+    ) -> crate::Result<RefineCounters> {
+        self.file_tally::<Counted>(terrain, camera, options, strip)
+    }
+
+    fn file_tally<C: Tally>(
         &mut self,
         terrain: &TerrainFile,
         camera: &Camera,
@@ -607,14 +628,17 @@ impl Refiner {
         strip: &mut Strip,
     ) -> crate::Result<RefineCounters> {
         match (terrain.mapped_records(), terrain.pager().observer()) {
-            (Some(records), None) => Ok(self.refine_source(terrain, records, camera, options, strip)),
+            (Some(records), None) => Ok(match RecordSlice::new(records) {
+                Some(slice) => self.source_tally::<_, C>(terrain, &slice, camera, options, strip),
+                None => self.source_tally::<_, C>(terrain, records, camera, options, strip),
+            }),
             (Some(records), Some(observer)) => {
                 let source = MappedRecords::new(records, terrain.header().payload_offset, observer);
-                Ok(self.refine_source(terrain, &source, camera, options, strip))
+                Ok(self.source_tally::<_, C>(terrain, &source, camera, options, strip))
             }
             (None, _) => {
                 let source = PagerRecords::new(terrain);
-                let counters = self.refine_source(terrain, &source, camera, options, strip);
+                let counters = self.source_tally::<_, C>(terrain, &source, camera, options, strip);
                 source.take_error()?;
                 Ok(counters)
             }
@@ -629,23 +653,70 @@ impl Refiner {
         camera: &Camera,
         options: &RefineOptions,
         strip: &mut Strip,
+    ) {
+        self.source_tally::<R, Uncounted>(terrain, records, camera, options, strip);
+    }
+
+    /// [`Self::refine_source`], counting the vertices tested and culled.
+    pub fn refine_source_counted<R: RecordSource + ?Sized>(
+        &mut self,
+        terrain: &TerrainFile,
+        records: &R,
+        camera: &Camera,
+        options: &RefineOptions,
+        strip: &mut Strip,
     ) -> RefineCounters {
-        struct Go<'a, R: ?Sized> {
+        self.source_tally::<R, Counted>(terrain, records, camera, options, strip)
+    }
+
+    fn source_tally<R: RecordSource + ?Sized, C: Tally>(
+        &mut self,
+        terrain: &TerrainFile,
+        records: &R,
+        camera: &Camera,
+        options: &RefineOptions,
+        strip: &mut Strip,
+    ) -> RefineCounters {
+        struct Go<'a, R: ?Sized, C> {
             refiner: &'a mut Refiner,
             records: &'a R,
             strip: &'a mut Strip,
+            tally: std::marker::PhantomData<C>,
         }
-        impl<R: RecordSource + ?Sized> ViewVisitor for Go<'_, R> {
+        impl<R: RecordSource + ?Sized, C: Tally> ViewVisitor for Go<'_, R, C> {
             type Output = RefineCounters;
             fn visit<L: Layout, M: ErrorMetric>(self, layout: &L, view: &View<M>) -> RefineCounters {
-                self.refiner.refine(layout, self.records, view, self.strip)
+                self.refiner.refine_tally::<L, R, M, C>(layout, self.records, view, self.strip)
             }
         }
-        with_view(terrain, camera, options, Go { refiner: self, records, strip })
+        let go = Go { refiner: self, records, strip, tally: std::marker::PhantomData::<C> };
+        with_view(terrain, camera, options, go)
     }
 
-    /// The generic entry: layout, record source and metric are all monomorphised.
+    /// The generic entry: layout, record source and metric are all monomorphised. Counts
+    /// nothing, so that its loop has no increments; [`Self::refine_counted`] counts.
     pub fn refine<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric>(
+        &mut self,
+        layout: &L,
+        records: &R,
+        view: &View<M>,
+        strip: &mut Strip,
+    ) {
+        self.refine_tally::<L, R, M, Uncounted>(layout, records, view, strip);
+    }
+
+    /// [`Self::refine`], counting the vertices it tests and culls (a separate monomorph).
+    pub fn refine_counted<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric>(
+        &mut self,
+        layout: &L,
+        records: &R,
+        view: &View<M>,
+        strip: &mut Strip,
+    ) -> RefineCounters {
+        self.refine_tally::<L, R, M, Counted>(layout, records, view, strip)
+    }
+
+    fn refine_tally<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, C: Tally>(
         &mut self,
         layout: &L,
         records: &R,
@@ -653,13 +724,13 @@ impl Refiner {
         strip: &mut Strip,
     ) -> RefineCounters {
         if view.morph {
-            self.refine_mode::<L, R, M, MorphTri>(layout, records, view, strip)
+            self.refine_mode::<L, R, M, MorphTri, C>(layout, records, view, strip)
         } else {
-            self.refine_mode::<L, R, M, NoMorph>(layout, records, view, strip)
+            self.refine_mode::<L, R, M, NoMorph, C>(layout, records, view, strip)
         }
     }
 
-    fn refine_mode<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
+    fn refine_mode<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally>(
         &mut self,
         layout: &L,
         records: &R,
@@ -696,9 +767,9 @@ impl Refiner {
         let reserve = last.saturating_add(last / 2).max(1024);
         strip.seed(sv(sw), corners[0].1, S::ON);
         let counters = if parallel {
-            self.refine_parallel::<L, R, M, S>(layout, records, view, strip, &roots, &corners, reserve)
+            self.refine_parallel::<L, R, M, S, C>(layout, records, view, strip, &roots, &corners, reserve)
         } else {
-            let (mut walk, mut at) = Walk::<L, R, M, S>::new(layout, records, view, strip, reserve);
+            let (mut walk, mut at) = Walk::<L, R, M, S, C>::new(layout, records, view, strip, reserve);
             for (k, t) in roots.iter().enumerate() {
                 at = walk.sub(at, t.apex, t.split, t.level, t.mask, S::new(&t.m));
                 if k < 3 {
@@ -719,7 +790,7 @@ impl Refiner {
     /// into the strip, the workers' into their own), then stitches the workers' in with degenerate
     /// triangles so that every vertex keeps its winding parity.
     #[allow(clippy::too_many_arguments)]
-    fn refine_parallel<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
+    fn refine_parallel<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally>(
         &mut self,
         layout: &L,
         records: &R,
@@ -758,7 +829,7 @@ impl Refiner {
                     continue;
                 }
                 expanded = true;
-                let split = probe_vertex(records, view, t.split, t.level - 1, t.mask, &S::new(&t.m), &mut counters);
+                let split = probe_vertex::<R, M, S, C>(records, view, t.split, t.level - 1, t.mask, &S::new(&t.m), &mut counters);
                 match split {
                     None => self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, t.m.apex())),
                     Some((mask, p)) => {
@@ -811,9 +882,9 @@ impl Refiner {
         pool.in_place_scope(|scope| {
             for back in backs.iter_mut() {
                 let claims = &claims;
-                scope.spawn(move |_| back.run::<L, R, M, S>(layout, records, view, tasks, claims));
+                scope.spawn(move |_| back.run::<L, R, M, S, C>(layout, records, view, tasks, claims));
             }
-            let (mut walk, mut at) = Walk::<L, R, M, S>::new(layout, records, view, &mut *strip, reserve);
+            let (mut walk, mut at) = Walk::<L, R, M, S, C>::new(layout, records, view, &mut *strip, reserve);
             for (k, item) in items.iter().enumerate() {
                 match *item {
                     Item::Append(v, p, m) => at = walk.append(at, v, p, m),
@@ -920,7 +991,7 @@ struct Back {
 
 impl Back {
     /// Refines tasks claimed from the back until none is left.
-    fn run<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
+    fn run<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally>(
         &mut self,
         layout: &L,
         records: &R,
@@ -943,7 +1014,7 @@ impl Back {
             self.strip.push(t.left, t.m.left(), S::ON);
             self.strip.push(t.left, t.m.left(), S::ON);
             self.strip.parity = 0;
-            let (mut walk, at) = Walk::<L, R, M, S>::new(layout, records, view, &mut self.strip, 0);
+            let (mut walk, at) = Walk::<L, R, M, S, C>::new(layout, records, view, &mut self.strip, 0);
             let at = walk.sub(at, t.apex, t.split, t.level, t.mask, S::new(&t.m));
             self.counters += walk.finish(at);
             self.segments.push(Segment { task: k, start, end: self.strip.len() });

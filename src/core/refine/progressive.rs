@@ -40,7 +40,7 @@ use crate::layout::{AnyLayout, Layout, LayoutVisitor};
 use crate::pager::remote::{RemoteFile, PAGE_BYTES};
 use crate::pager::sparse::PageMap;
 use crate::refine::records::RecordSource;
-use crate::refine::{Morph, RefineCounters, RefineOptions, Refiner, Strip};
+use crate::refine::{Morph, RefineOptions, Refiner, Strip};
 
 const BLOCK_BYTES: u64 = RECORDS_PER_BLOCK * RECORD_BYTES as u64;
 const WORDS_PER_BLOCK: usize = (RECORDS_PER_BLOCK as usize).div_ceil(64);
@@ -122,7 +122,6 @@ impl RecordSource for FrameRecords<'_> {
 /// What one progressive frame used and missed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct ProgressiveFrame {
-    pub counters: RefineCounters,
     /// Record reads that found no effective record (the strip is coarser there).
     pub missed_records: u64,
     /// The causal round of the newest data the frame used (1: the opening request alone).
@@ -430,7 +429,7 @@ impl Progressive {
             representatives: &self.representatives,
             missed: AtomicU64::new(0),
         };
-        let counters = refiner.refine_source(&terrain, &records, camera, options, strip);
+        refiner.refine_source(&terrain, &records, camera, options, strip);
         let missed_records = records.missed.into_inner();
         let mut missing_heights = 0;
         if options.heights && options.morph_ratio.is_none() {
@@ -469,7 +468,7 @@ impl Progressive {
             let round = self.round + 1;
             self.send(Plan { round, misses });
         }
-        Ok(ProgressiveFrame { counters, missed_records, round_trips: self.round, missing_heights })
+        Ok(ProgressiveFrame { missed_records, round_trips: self.round, missing_heights })
     }
 }
 

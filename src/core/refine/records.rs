@@ -60,6 +60,50 @@ impl RecordSource for [Record] {
     }
 }
 
+/// A record slice whose 16-byte lane reads clamp the index instead of branching on it: the walk
+/// reads two records a node, and a clamp (compare and conditional move against a bound computed
+/// once) costs less than the slice's bounds check. Indices from the walk are always in range (a
+/// layout maps every grid vertex below its length), so the clamp only keeps a wrong index inside
+/// the slice; it never changes a correct read.
+#[derive(Clone, Copy)]
+pub struct RecordSlice<'a> {
+    records: &'a [Record],
+    /// The last index whose 16 bytes lie in the slice (`len − 2`).
+    last: usize,
+}
+
+impl<'a> RecordSlice<'a> {
+    /// `None` for fewer than two records (no 16-byte read fits).
+    pub fn new(records: &'a [Record]) -> Option<Self> {
+        (records.len() >= 2).then(|| RecordSlice { records, last: records.len() - 2 })
+    }
+
+    pub fn records(&self) -> &'a [Record] {
+        self.records
+    }
+}
+
+impl RecordSource for RecordSlice<'_> {
+    #[inline(always)]
+    fn record(&self, index: u64) -> Record {
+        self.records[index as usize]
+    }
+
+    #[inline(always)]
+    fn record4(&self, index: u64) -> [f32; 4] {
+        debug_assert!((index as usize) < self.records.len());
+        let i = (index as usize).min(self.last);
+        // SAFETY: `i ≤ len − 2`, so the 16 bytes from record `i` (12 of it, 4 of the next) are in
+        // the slice; `[f32; 4]` is read unaligned.
+        unsafe { self.records.as_ptr().add(i).cast::<[f32; 4]>().read_unaligned() }
+    }
+
+    #[inline(always)]
+    fn prefetch(&self, index: u64) {
+        self.records.prefetch(index)
+    }
+}
+
 /// A mapped terrain's records, every read reported to an observer: record `i` lives at byte
 /// `payload_offset + i · 12` of the file.
 pub struct MappedRecords<'a, O: PageObserver> {

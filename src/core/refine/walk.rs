@@ -241,17 +241,55 @@ impl<'a> Out<'a> {
     }
 }
 
-/// One (sub)strip's refinement: the layout, the records and the view, the output, the counts.
-pub(super) struct Walk<'a, L, R: ?Sized, M: ErrorMetric, S: Carry> {
+/// Whether a walk counts its tests ([`Counted`]: `relief refine`'s report) or not
+/// ([`Uncounted`]: every other refinement), at compile time, so that the loop without counts
+/// carries no increments.
+pub(super) trait Tally: Copy + Default + Send + Sync + 'static {
+    const ON: bool;
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Counted;
+
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Uncounted;
+
+impl Tally for Counted {
+    const ON: bool = true;
+}
+
+impl Tally for Uncounted {
+    const ON: bool = false;
+}
+
+impl RefineCounters {
+    #[inline(always)]
+    fn visit<C: Tally>(&mut self, n: u64) {
+        if C::ON {
+            self.visited += n;
+        }
+    }
+
+    #[inline(always)]
+    fn cull<C: Tally>(&mut self) {
+        if C::ON {
+            self.culled += 1;
+        }
+    }
+}
+
+/// One (sub)strip's refinement: the layout, the records and the view, the output, the counts
+/// (when `C` counts).
+pub(super) struct Walk<'a, L, R: ?Sized, M: ErrorMetric, S: Carry, C: Tally> {
     layout: &'a L,
     records: &'a R,
     view: &'a View<M>,
     out: Out<'a>,
     counters: RefineCounters,
-    carry: std::marker::PhantomData<S>,
+    carry: std::marker::PhantomData<(S, C)>,
 }
 
-impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a, L, R, M, S> {
+impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally> Walk<'a, L, R, M, S, C> {
     /// A walk appending to `strip` (seeded), with room reserved for `reserve` more vertices (it
     /// grows when that is not enough).
     pub fn new(layout: &'a L, records: &'a R, view: &'a View<M>, strip: &'a mut Strip, reserve: usize) -> (Self, At) {
@@ -274,7 +312,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
 
     #[inline(always)]
     fn test<const MASKED: bool>(&mut self, c: u64, index: u64, lc: u32, mask: u8, m: &S) -> Option<(u8, S::Point)> {
-        probe::<MASKED, R, M, S>(self.records, self.view, c, index, lc, mask, m, &mut self.counters)
+        probe::<MASKED, R, M, S, C>(self.records, self.view, c, index, lc, mask, m, &mut self.counters)
     }
 
     /// The hoisted `submesh_refine` for a triangle of level `l` with active apex `i` and untested
@@ -292,14 +330,14 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
     fn sub_mode<const MASKED: bool>(&mut self, at: At, i: Vertex, j: Vertex, l: u32, mask: u8, m: S) -> At {
         let (ik, jk) = (pack(i.x, i.y), pack(j.x, j.y));
         if l >= 2 {
-            self.counters.visited += 1;
+            self.counters.visit::<C>(1);
             if let Some((mask, p)) = self.test::<MASKED>(jk, j.index, l - 1, mask, &m) {
                 if l == 2 {
                     return self.finest(at, ik, jk, p, &m);
                 }
                 let [cl, cr] = self.layout.split_children(i, j);
                 let (left, right) = m.halves(p);
-                self.counters.visited += 2;
+                self.counters.visit::<C>(2);
                 let mut at = self.side_any::<MASKED>(at, jk, j.index, cl, l - 1, mask, left);
                 at = self.out.append_any::<S>(at, ik, (l & 1) as u8, m.apex());
                 return self.side_any::<MASKED>(at, jk, j.index, cr, l - 1, mask, right);
@@ -455,7 +493,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
             }
         }
         let (left, right) = m.halves(p);
-        self.counters.visited += 2;
+        self.counters.visit::<C>(2);
         // The children's triangles have level l − 1, of the other parity.
         if !M::EUCLIDEAN {
             return if ODD {
@@ -476,11 +514,11 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
             let [(out_l, keep_l), (out_r, keep_r)] = lanes::cull(&self.view.fast, &pair, l - 2, mask);
             if on_l && out_l {
                 on_l = false;
-                self.counters.culled += 1;
+                self.counters.cull::<C>();
             }
             if on_r && out_r {
                 on_r = false;
-                self.counters.culled += 1;
+                self.counters.cull::<C>();
             }
             (mask_l, mask_r) = (keep_l, keep_r);
         }
@@ -522,7 +560,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry> Walk<'a,
 /// when `MASKED`: the plane mask its children start from and its morph point, if it is active.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-pub(super) fn probe<const MASKED: bool, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
+pub(super) fn probe<const MASKED: bool, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally>(
     records: &R,
     view: &View<M>,
     c: u64,
@@ -537,7 +575,7 @@ pub(super) fn probe<const MASKED: bool, R: RecordSource + ?Sized, M: ErrorMetric
     match view.test::<MASKED>(x, y, lc, rec, mask) {
         Test::Inactive => None,
         Test::Culled => {
-            counters.culled += 1;
+            counters.cull::<C>();
             None
         }
         Test::Active { mask } => {
@@ -548,7 +586,7 @@ pub(super) fn probe<const MASKED: bool, R: RecordSource + ?Sized, M: ErrorMetric
 }
 
 /// [`probe`] of a [`Vertex`], culling when `mask` has planes left (counted as visited).
-pub(super) fn probe_vertex<R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
+pub(super) fn probe_vertex<R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally>(
     records: &R,
     view: &View<M>,
     v: Vertex,
@@ -557,11 +595,11 @@ pub(super) fn probe_vertex<R: RecordSource + ?Sized, M: ErrorMetric, S: Carry>(
     m: &S,
     counters: &mut RefineCounters,
 ) -> Option<(u8, S::Point)> {
-    counters.visited += 1;
+    counters.visit::<C>(1);
     let k = pack(v.x, v.y);
     if mask != 0 {
-        probe::<true, R, M, S>(records, view, k, v.index, lv, mask, m, counters)
+        probe::<true, R, M, S, C>(records, view, k, v.index, lv, mask, m, counters)
     } else {
-        probe::<false, R, M, S>(records, view, k, v.index, lv, 0, m, counters)
+        probe::<false, R, M, S, C>(records, view, k, v.index, lv, 0, m, counters)
     }
 }
