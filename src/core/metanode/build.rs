@@ -212,6 +212,9 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
         )));
     }
     let bounds = mesh.bounds().ok_or_else(|| Error::InvalidArgument("mesh without vertices".into()))?;
+    if super::collapse::needed_bytes(n as u64, t as u64, options.metric) <= budget {
+        return build_in_memory(mesh, output, options, start, bounds);
+    }
     let out_dir = match output.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
@@ -285,6 +288,69 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
         memory_budget_bytes: budget,
         redb_cache_bytes: cache_bytes,
         peak_accounted_bytes: peak_accounted,
+        peak_rss_anon_bytes: peak_rss,
+        rss_anon_baseline_bytes: baseline,
+    })
+}
+
+/// The whole mesh in memory ([`super::collapse`]): no scratch database, one batch, the same
+/// bytes as a batched build.
+fn build_in_memory(
+    mesh: Mesh,
+    output: &Path,
+    options: &BuildOptions,
+    start: Instant,
+    bounds: crate::mesh::Bounds,
+) -> Result<BuildReport> {
+    let (n, t) = (mesh.positions.len() as u64, mesh.triangles.len() as u64);
+    let baseline = crate::sys::mem::rss_anon_bytes().unwrap_or(0);
+    let sampler = crate::sys::mem::AnonSampler::start();
+    let ingest_ms = start.elapsed().as_secs_f64() * 1e3;
+    let build_start = Instant::now();
+    let forest = super::collapse::collapse(&mesh, options.metric, &options.progress)?;
+    drop(mesh);
+    let header = VdtHeader {
+        metric: options.metric,
+        leaves: n,
+        nodes: forest.nodes.len() as u64,
+        triangles: t,
+        base_triangles: forest.base.len() as u64,
+        bounds,
+    };
+    if forest.dying.len() as u64 + header.base_triangles != t {
+        return Err(Error::InvalidArgument(format!(
+            "internal error in the VDT build: {} dying and {} base triangles for {t} input triangles",
+            forest.dying.len(),
+            header.base_triangles
+        )));
+    }
+    crate::sys::atomic_file::write(output, |w| {
+        write_header(w, &header)?;
+        w.write_all(bytemuck::cast_slice(&forest.nodes))?;
+        w.write_all(bytemuck::cast_slice(&forest.dying))?;
+        w.write_all(bytemuck::cast_slice(&forest.base))
+    })?;
+    let stats = forest.stats;
+    let peak_rss = sampler.finish();
+    Ok(BuildReport {
+        metric: options.metric,
+        leaves: n,
+        nodes: header.nodes,
+        roots: n - stats.collapses,
+        triangles: t,
+        base_triangles: header.base_triangles,
+        collapses: stats.collapses,
+        rejections: stats.rejections,
+        batches: 1,
+        sub_meshes: stats.sub_meshes,
+        loads: stats.loads,
+        vdt_bytes: header.file_bytes(),
+        mesh_bytes: n * 24 + t * 12,
+        ingest_ms,
+        build_ms: build_start.elapsed().as_secs_f64() * 1e3,
+        memory_budget_bytes: options.memory_budget_bytes,
+        redb_cache_bytes: 0,
+        peak_accounted_bytes: super::collapse::needed_bytes(n, t, options.metric),
         peak_rss_anon_bytes: peak_rss,
         rss_anon_baseline_bytes: baseline,
     })

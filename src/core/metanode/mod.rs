@@ -83,6 +83,7 @@ pub struct VdtTriangle {
 }
 
 pub mod build;
+pub mod collapse;
 pub mod simplify;
 
 pub use crate::format::vdt::{VdtFile, VdtHeader, VdtMetric};

@@ -336,7 +336,7 @@ fn pair(a: u32, b: u32) -> u64 {
 }
 
 /// `r` as f32, rounded up (radii must not shrink when written).
-fn f32_up(r: f64) -> f32 {
+pub(super) fn f32_up(r: f64) -> f32 {
     let f = r as f32;
     if (f as f64) < r {
         f.next_up()
