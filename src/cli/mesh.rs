@@ -121,10 +121,17 @@ pub enum Command {
         vdt: Option<PathBuf>,
         /// Memory budget of the build phase: BYTES with an optional binary K/M/G suffix (64M,
         /// 1.5G), or a fraction "A/B" of the mesh's size in memory (24 bytes a vertex plus 12 a
-        /// triangle). It covers the redb page cache (1/8 of it), the scratch buffers and the
-        /// loaded sub-meshes; reading the input beforehand holds the whole mesh regardless.
+        /// triangle). When it holds the whole build in memory (about 7-9 times the mesh's
+        /// size; the report's peak_accounted_bytes) there is no scratch store and one pass;
+        /// below that it covers the redb page cache (1/8 of it), the scratch buffers and the
+        /// loaded sub-meshes, batch after batch. Either way the output is the same, byte for
+        /// byte; reading the input beforehand holds the whole mesh regardless.
         #[arg(long, value_name = "BYTES")]
         memory: String,
+        /// Build in batches through the scratch B-tree even when the budget holds the whole
+        /// mesh (the same bytes, slower: for measurements).
+        #[arg(long)]
+        batched: bool,
         /// Collapse metric: edge length, or the square root of the Garland–Heckbert quadric
         /// error (both in mesh units).
         #[arg(long, value_enum, default_value = "length")]
@@ -304,7 +311,7 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Build { input, output, vdt, memory, metric, levels_per_node, page_size, json, quiet } => {
+        Command::Build { input, output, vdt, memory, batched, metric, levels_per_node, page_size, json, quiet } => {
             let page_bytes = parse_bytes("--page-size", &page_size)?;
             let blocking = BlockingOptions { levels_per_node, page_bytes: page_bytes.min(u32::MAX as u64) as u32 };
             blocking.validate().map_err(|e| anyhow::anyhow!("--levels-per-node / --page-size: {e}"))?;
@@ -339,6 +346,7 @@ pub fn run(kind: Command) -> anyhow::Result<ExitCode> {
             };
             let mut options = BuildOptions::new(memory_bytes, metric);
             options.progress = progress(quiet);
+            options.always_batched = batched;
             let read_ms = start.elapsed().as_secs_f64() * 1e3;
             let mut r = relief::metanode::build_tree(m, &output, vdt.as_deref(), &options, blocking)?;
             // Ingest as the user waits for it: reading the file too.

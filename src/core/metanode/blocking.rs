@@ -124,13 +124,32 @@ pub fn write_metanode_file(forest: &Forest<'_>, options: BlockingOptions, out: &
         }
         let pad = (data_offset - base_offset - base_bytes) as usize;
         w.write_all(&vec![0u8; pad])?;
-        let mut block = Vec::with_capacity(holder_bytes as usize);
-        for (m, meta) in plan.metas.iter().enumerate() {
-            encode_block(forest, &plan, m as u32, &mut block);
-            debug_assert_eq!(block.len(), meta.bytes);
-            w.write_all(&block)?;
-            let padded = block.len().div_ceil(page as usize) * page as usize;
-            w.write_all(&vec![0u8; padded - block.len()])?;
+        // Blocks are encoded in parallel, a chunk of meta-nodes at a time, and written in order.
+        use rayon::prelude::*;
+        const CHUNK: usize = 4096;
+        let zeros = vec![0u8; page as usize];
+        for first in (0..plan.metas.len()).step_by(CHUNK) {
+            let last = (first + CHUNK).min(plan.metas.len());
+            let blocks: Vec<Vec<u8>> = (first..last)
+                .into_par_iter()
+                .map(|m| {
+                    let mut block = Vec::new();
+                    encode_block(forest, &plan, m as u32, &mut block);
+                    block
+                })
+                .collect();
+            for (block, meta) in blocks.iter().zip(&plan.metas[first..last]) {
+                if block.len() != meta.bytes {
+                    return Err(std::io::Error::other(format!(
+                        "internal error: a block of {} bytes planned as {}",
+                        block.len(),
+                        meta.bytes
+                    )));
+                }
+                w.write_all(block)?;
+                let padded = block.len().div_ceil(page as usize) * page as usize;
+                w.write_all(&zeros[..padded - block.len()])?;
+            }
         }
         Ok(())
     })?;
@@ -249,12 +268,15 @@ fn plan(forest: &Forest<'_>, options: BlockingOptions, out: &Path) -> Result<Pla
     let levels = options.levels_per_node;
     // Bytes of a group root's first L levels (capped at a page), for packing sibling subtrees:
     // counted, since view-dependence trees are far from balanced.
-    let estimate = |v: u32| -> usize {
+    let mut scratch = (Vec::new(), Vec::new());
+    let mut estimate = |v: u32| -> usize {
+        let (level, next) = &mut scratch;
         let mut bytes = 0;
-        let mut level = vec![v];
+        level.clear();
+        level.push(v);
         for _ in 0..levels {
-            let mut next = Vec::new();
-            for &u in &level {
+            next.clear();
+            for &u in level.iter() {
                 let node = &nodes[u as usize];
                 bytes += NODE_BYTES + COORD_BYTES / 2 + TRI_BYTES * node.tri_count as usize;
                 if node.children[0] != NONE {
@@ -264,11 +286,11 @@ fn plan(forest: &Forest<'_>, options: BlockingOptions, out: &Path) -> Result<Pla
             if bytes >= page || next.is_empty() {
                 break;
             }
-            level = next;
+            std::mem::swap(level, next);
         }
         bytes.min(page)
     };
-    let group = |frontier: &[u32]| -> Vec<Vec<u32>> {
+    let mut group = |frontier: &[u32]| -> Vec<Vec<u32>> {
         let mut groups: Vec<Vec<u32>> = Vec::new();
         let mut size = usize::MAX;
         for &v in frontier {
@@ -288,7 +310,7 @@ fn plan(forest: &Forest<'_>, options: BlockingOptions, out: &Path) -> Result<Pla
     let mut meta_of = vec![NONE; n];
     let mut local_of = vec![0u16; n];
     let mut queue: std::collections::VecDeque<(u32, Vec<u32>)> = group(&roots).into_iter().map(|g| (NONE, g)).collect();
-    let mut coords = std::collections::HashSet::new();
+    let mut coords = rustc_hash::FxHashSet::default();
     while let Some((parent, group_roots)) = queue.pop_front() {
         let m = metas.len() as u32;
         let start = order.len();
@@ -334,12 +356,21 @@ fn plan(forest: &Forest<'_>, options: BlockingOptions, out: &Path) -> Result<Pla
         }
         metas.push(PlannedMeta { parent, first_child, child_count, start, len: order.len() - start, bytes });
     }
-    // The byte count above may overcount shared coordinates of later duplicates; recompute exactly.
+    // The byte count above may overcount shared coordinates of later duplicates; count exactly
+    // (what encode_block writes: the members, their distinct coordinates, their triangles).
     let mut plan = Plan { metas, order, meta_of, local_of, dfs_lo };
-    let mut scratch = Vec::new();
-    for m in 0..plan.metas.len() {
-        encode_block(forest, &plan, m as u32, &mut scratch);
-        plan.metas[m].bytes = scratch.len();
+    for meta in &mut plan.metas {
+        coords.clear();
+        let members = &plan.order[meta.start..meta.start + meta.len];
+        let mut tris = 0;
+        for &v in members {
+            let node = &nodes[v as usize];
+            coords.insert(node.position.map(f32::to_bits));
+            if node.children[0] != NONE {
+                tris += node.tri_count as usize;
+            }
+        }
+        meta.bytes = BLOCK_HEADER_BYTES + members.len() * NODE_BYTES + coords.len() * COORD_BYTES + tris * TRI_BYTES;
     }
     Ok(plan)
 }
@@ -350,7 +381,7 @@ fn encode_block(forest: &Forest<'_>, plan: &Plan, m: u32, out: &mut Vec<u8>) {
     let meta = &plan.metas[m as usize];
     let members = &plan.order[meta.start..meta.start + meta.len];
     let mut coords: Vec<[f32; 3]> = Vec::new();
-    let mut coord_index = std::collections::HashMap::new();
+    let mut coord_index = rustc_hash::FxHashMap::default();
     let mut records = Vec::with_capacity(members.len());
     let mut tris: Vec<[u32; 3]> = Vec::new();
     for &v in members {

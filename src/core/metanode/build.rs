@@ -103,6 +103,9 @@ pub struct BuildOptions {
     /// Each batch first grows sub-meshes from the shortest edges until this fraction of the
     /// budget is committed, then collapses, loading more as the order needs it (0 to 1).
     pub span_fraction: f64,
+    /// Build through the scratch B-tree in batches even when the budget holds the whole mesh
+    /// ([`super::collapse`]); the bytes are the same (for measurements and tests).
+    pub always_batched: bool,
     pub progress: Progress,
 }
 
@@ -113,6 +116,7 @@ impl BuildOptions {
             metric,
             scratch_dir: None,
             span_fraction: DEFAULT_SPAN_FRACTION,
+            always_batched: false,
             progress: Progress::hidden(),
         }
     }
@@ -212,7 +216,7 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
         )));
     }
     let bounds = mesh.bounds().ok_or_else(|| Error::InvalidArgument("mesh without vertices".into()))?;
-    if super::collapse::needed_bytes(n as u64, t as u64, options.metric) <= budget {
+    if !options.always_batched && super::collapse::needed_bytes(n as u64, t as u64, options.metric) <= budget {
         return build_in_memory(mesh, output, options, start, bounds);
     }
     let out_dir = match output.parent() {

@@ -50,13 +50,15 @@ pub fn needed_bytes(vertices: u64, triangles: u64, metric: VdtMetric) -> u64 {
         + 8 // slot of an id (2n ids), id of a slot
         + 20 // switch, radius, leaves
         + if metric == VdtMetric::Quadric { 80 } else { 0 }
-        + 2 * 24 // triangle and rejected list headers
+        + 64 // triangle list, in place
         + 2 * 48; // node records (leaves and collapses)
     let per_triangle = 12 // the mesh's
         + 12 // current corners
         + 3 * 4 * 2 // list entries, with the lists' slack
         + 12; // the output record
-    n * per_vertex + t * per_triangle + edges * 2 * 16
+    // Rejected edges: a map entry and list per rejected end (a few % of edges at most; all of
+    // them counted).
+    n * per_vertex + t * per_triangle + edges * 2 * 16 + edges * 16
 }
 
 /// The per-slot state of a current vertex.
@@ -68,9 +70,10 @@ struct Slots {
     /// Empty for the length metric.
     quadric: Vec<Quadric>,
     /// Live triangles (ids) holding the slot.
-    tris: Vec<Vec<u32>>,
-    /// Rejected edges, by the other end's slot.
-    rejected: Vec<Vec<u32>>,
+    tris: Lists,
+    /// Rejected edges by slot: the other ends' slots. Few slots have any (about 1% of edges
+    /// are ever rejected), and a dense array of lists cost a cache miss per 1-ring vertex.
+    rejected: rustc_hash::FxHashMap<u32, Vec<u32>>,
 }
 
 struct Engine<'m> {
@@ -107,7 +110,9 @@ pub fn collapse(mesh: &Mesh, metric: VdtMetric, progress: &crate::sys::progress:
             "a VDT needs 1 to 2^31 vertices and fewer than 2^32 − 1 triangles; this mesh has {n} and {t}"
         )));
     }
+    let t0 = std::time::Instant::now();
     let mut engine = Engine::new(mesh, metric);
+    let t1 = std::time::Instant::now();
     let bar = progress.bar("vdt build", n.saturating_sub(1) as u64, "collapses");
     let mut steps = 0u64;
     while let Some(key) = engine.pop() {
@@ -119,7 +124,9 @@ pub fn collapse(mesh: &Mesh, metric: VdtMetric, progress: &crate::sys::progress:
         engine.process(key)?;
     }
     bar.finish_and_clear();
-    Ok(engine.finish())
+    let t2 = std::time::Instant::now();
+    let out = engine.finish();
+    Ok(out)
 }
 
 impl<'m> Engine<'m> {
@@ -134,17 +141,21 @@ impl<'m> Engine<'m> {
                 counts[c as usize] += 1;
             }
         }
-        let mut tris: Vec<Vec<u32>> = counts.iter().map(|&k| Vec::with_capacity(k as usize)).collect();
+        let mut tris = Lists::new(n);
+        for (v, &k) in counts.iter().enumerate() {
+            tris.reserve(v as u32, k as usize);
+        }
         drop(counts);
         for (k, tri) in input.iter().enumerate() {
             for &c in tri {
-                tris[c as usize].push(k as u32);
+                tris.push(c, k as u32);
             }
         }
         let quadric: Vec<Quadric> = match metric {
             VdtMetric::Length => Vec::new(),
-            VdtMetric::Quadric => tris
-                .par_iter()
+            VdtMetric::Quadric => (0..n as u32)
+                .into_par_iter()
+                .map(|v| tris.get(v))
                 .map(|list| {
                     list.iter().fold([0.0; 10], |q, &k| {
                         let [a, b, c] = input[k as usize].map(|i| positions[i as usize]);
@@ -164,7 +175,7 @@ impl<'m> Engine<'m> {
                 leaves: vec![1; n],
                 quadric,
                 tris,
-                rejected: vec![Vec::new(); n],
+                rejected: Default::default(),
             },
             slot_of: Vec::with_capacity(2 * n),
             alive: vec![0; (2 * n).div_ceil(64)],
@@ -222,9 +233,9 @@ impl<'m> Engine<'m> {
                 }
             }
         }
-        let with_edges = engine.slots.tris.iter().filter(|l| !l.is_empty()).count() as u64;
+        let with_edges = (0..n as u32).filter(|&v| !engine.slots.tris.get(v).is_empty()).count() as u64;
         let components =
-            (0..n as u32).filter(|&v| !engine.slots.tris[v as usize].is_empty() && find(&mut up, v) == v).count();
+            (0..n as u32).filter(|&v| !engine.slots.tris.get(v).is_empty() && find(&mut up, v) == v).count();
         engine.stats.loads = with_edges;
         engine.stats.sub_meshes = components as u64;
         engine
@@ -237,20 +248,40 @@ impl<'m> Engine<'m> {
             let (x, y) = key_ends(key);
             (alive[x as usize / 64] >> (x % 64)) & (alive[y as usize / 64] >> (y % 64)) & 1 == 1
         })?;
-        // The keys to come are known (a run is sorted): fetch their ends' slots, and the slots'
-        // state for those a little closer, so the collapses do not wait on memory.
+        // The keys to come are known (a run is sorted), and what their collapses read is a
+        // chain of dependent loads (slot, its triangle list, the triangles' corners, the
+        // corners' positions and lists): each stage is fetched a few keys before the next
+        // needs it, so the collapses do not wait on memory.
+        let fetch = crate::sys::prefetch::<u8>;
+        let slot = |id: u32| self.slot_of.get(id as usize).copied().filter(|&s| s != NONE);
         if let Some(ahead) = self.queue.ahead(16) {
             let (x, y) = key_ends(ahead);
-            crate::sys::prefetch(self.slot_of.as_ptr().wrapping_add(x as usize));
-            crate::sys::prefetch(self.slot_of.as_ptr().wrapping_add(y as usize));
+            fetch(self.slot_of.as_ptr().wrapping_add(x as usize).cast());
+            fetch(self.slot_of.as_ptr().wrapping_add(y as usize).cast());
         }
-        if let Some(ahead) = self.queue.ahead(6) {
+        if let Some(ahead) = self.queue.ahead(10) {
             let (x, y) = key_ends(ahead);
-            for id in [x, y] {
-                if let Some(&s) = self.slot_of.get(id as usize).filter(|&&s| s != NONE) {
-                    crate::sys::prefetch(self.positions.as_ptr().wrapping_add(s as usize));
-                    if let Some(list) = self.slots.tris.get(s as usize) {
-                        crate::sys::prefetch(list.as_ptr());
+            for s in [x, y].into_iter().filter_map(slot) {
+                fetch(self.slots.tris.inline.as_ptr().wrapping_add(s as usize).cast());
+                fetch(self.slots.id.as_ptr().wrapping_add(s as usize).cast());
+            }
+        }
+        if let Some(ahead) = self.queue.ahead(5) {
+            let (x, y) = key_ends(ahead);
+            for s in [x, y].into_iter().filter_map(slot) {
+                for &t in self.slots.tris.get(s) {
+                    fetch(self.corners.as_ptr().wrapping_add(t as usize).cast());
+                }
+            }
+        }
+        if let Some(ahead) = self.queue.ahead(2) {
+            let (x, y) = key_ends(ahead);
+            for s in [x, y].into_iter().filter_map(slot) {
+                for &t in self.slots.tris.get(s) {
+                    for c in self.corners.get(t as usize).map_or([NONE; 3], |c| *c) {
+                        fetch(self.positions.as_ptr().wrapping_add(c as usize).cast());
+                        fetch(self.slots.tris.inline.as_ptr().wrapping_add(c as usize).cast());
+                        fetch(self.slots.id.as_ptr().wrapping_add(c as usize).cast());
                     }
                 }
             }
@@ -261,7 +292,7 @@ impl<'m> Engine<'m> {
     /// The sorted, distinct other corners (slots) of slot `s`'s triangles.
     fn neighbours_into(&self, s: u32, out: &mut Vec<u32>) {
         out.clear();
-        for &t in &self.slots.tris[s as usize] {
+        for &t in self.slots.tris.get(s) {
             out.extend(self.corners[t as usize].iter().copied().filter(|&c| c != s));
         }
         out.sort_unstable();
@@ -307,8 +338,8 @@ impl<'m> Engine<'m> {
                 return self.collapse(s, v, value);
             }
         }
-        self.slots.rejected[sa as usize].push(sb);
-        self.slots.rejected[sb as usize].push(sa);
+        self.slots.rejected.entry(sa).or_default().push(sb);
+        self.slots.rejected.entry(sb).or_default().push(sa);
         self.stats.rejections += 1;
         Ok(())
     }
@@ -316,7 +347,7 @@ impl<'m> Engine<'m> {
     /// Whether moving slot `v` onto slot `s` keeps every moving triangle's orientation.
     fn foldover_ok(&self, s: u32, v: u32) -> bool {
         let target = self.positions[s as usize];
-        self.slots.tris[v as usize].iter().all(|&t| {
+        self.slots.tris.get(v).iter().all(|&t| {
             let corners = self.corners[t as usize];
             if corners.contains(&s) {
                 return true; // dies
@@ -325,6 +356,16 @@ impl<'m> Engine<'m> {
             let after = std::array::from_fn(|k| if corners[k] == v { target } else { before[k] });
             triangle_survives(before, after)
         })
+    }
+
+    /// Removes `x` from slot `d`'s rejected list.
+    fn unreject(&mut self, d: u32, x: u32) {
+        if let Some(list) = self.slots.rejected.get_mut(&d) {
+            list.retain(|&y| y != x);
+            if list.is_empty() {
+                self.slots.rejected.remove(&d);
+            }
+        }
     }
 
     /// Collapses slot `v` onto slot `s` into a new node, which takes `s`'s slot.
@@ -343,8 +384,8 @@ impl<'m> Engine<'m> {
         for (x, other) in [(s, v), (v, s)] {
             self.neighbours_into(x, &mut nbrs);
             ring.extend(nbrs.iter().copied().filter(|&c| c != other));
-            for c in std::mem::take(&mut self.slots.rejected[x as usize]) {
-                self.slots.rejected[c as usize].retain(|&d| d != x);
+            for c in self.slots.rejected.remove(&x).unwrap_or_default() {
+                self.unreject(c, x);
             }
         }
         ring.sort_unstable();
@@ -355,14 +396,14 @@ impl<'m> Engine<'m> {
         let mut survivors = std::mem::take(&mut self.survivors);
         dying.clear();
         survivors.clear();
-        for &t in &self.slots.tris[su] {
+        for &t in self.slots.tris.get(s) {
             if self.corners[t as usize].contains(&v) {
                 dying.push(t);
             } else {
                 survivors.push(t);
             }
         }
-        for &t in &self.slots.tris[vu] {
+        for &t in self.slots.tris.get(v) {
             let corners = &mut self.corners[t as usize];
             if !corners.contains(&s) {
                 for c in corners.iter_mut().filter(|c| **c == v) {
@@ -374,12 +415,12 @@ impl<'m> Engine<'m> {
         for &t in &dying {
             let corners = self.corners[t as usize];
             if let Some(third) = corners.iter().copied().find(|&c| c != s && c != v) {
-                self.slots.tris[third as usize].retain(|&x| x != t);
+                self.slots.tris.remove(third, t);
             }
             self.corners[t as usize] = [NONE; 3];
         }
-        std::mem::swap(&mut self.slots.tris[su], &mut survivors);
-        self.slots.tris[vu] = Vec::new();
+        self.slots.tris.set(s, &survivors);
+        self.slots.tris.set(v, &[]);
 
         // The new node's state, in s's slot (the same arithmetic as the batched build).
         let f32_at = |p: [f64; 3]| p.map(|c| c as f32 as f64);
@@ -417,10 +458,11 @@ impl<'m> Engine<'m> {
         }
         let mut others = std::mem::take(&mut self.others);
         for &c in &ring {
+            let Some(mut list) = self.slots.rejected.remove(&c) else { continue };
             others.clear();
-            others.append(&mut self.slots.rejected[c as usize]);
+            others.append(&mut list);
             for &d in &others {
-                self.slots.rejected[d as usize].retain(|&x| x != c);
+                self.unreject(d, c);
                 let key = self.key(c, d);
                 self.queue.push(key);
             }
@@ -473,6 +515,94 @@ impl<'m> Engine<'m> {
             .map(|(_, &corners)| VdtTriangle { corners })
             .collect();
         Collapsed { nodes, dying: self.dying_out, base, stats: self.stats }
+    }
+}
+
+/// Triangles a slot's list holds in place (one cache line with its length).
+const INLINE: usize = 15;
+
+/// The slots' triangle lists: up to [`INLINE`] ids in place, so that reading a list is one
+/// cache line and changing it allocates nothing; longer lists (vertices of high valence, few)
+/// live in a map.
+struct Lists {
+    inline: Vec<Inline>,
+    long: rustc_hash::FxHashMap<u32, Vec<u32>>,
+}
+
+#[derive(Clone, Copy)]
+#[repr(C, align(64))]
+struct Inline {
+    len: u32,
+    ids: [u32; INLINE],
+}
+
+impl Lists {
+    fn new(n: usize) -> Lists {
+        Lists { inline: vec![Inline { len: 0, ids: [0; INLINE] }; n], long: Default::default() }
+    }
+
+    fn get(&self, s: u32) -> &[u32] {
+        let l = &self.inline[s as usize];
+        if l.len as usize <= INLINE {
+            &l.ids[..l.len as usize]
+        } else {
+            self.long.get(&s).map_or(&[], |v| v.as_slice())
+        }
+    }
+
+    /// Makes room for `k` ids in an empty list.
+    fn reserve(&mut self, s: u32, k: usize) {
+        if k > INLINE {
+            self.long.insert(s, Vec::with_capacity(k));
+        }
+    }
+
+    fn push(&mut self, s: u32, t: u32) {
+        let l = &mut self.inline[s as usize];
+        let len = l.len as usize;
+        if len < INLINE && !self.long.contains_key(&s) {
+            l.ids[len] = t;
+            l.len += 1;
+            return;
+        }
+        let long = self.long.entry(s).or_default();
+        if len == INLINE && long.is_empty() {
+            long.extend_from_slice(&l.ids);
+        }
+        long.push(t);
+        l.len = long.len() as u32;
+    }
+
+    fn set(&mut self, s: u32, ids: &[u32]) {
+        let l = &mut self.inline[s as usize];
+        if ids.len() <= INLINE {
+            l.ids[..ids.len()].copy_from_slice(ids);
+            if l.len as usize > INLINE {
+                self.long.remove(&s);
+            }
+        } else {
+            let long = self.long.entry(s).or_default();
+            long.clear();
+            long.extend_from_slice(ids);
+        }
+        l.len = ids.len() as u32;
+    }
+
+    /// Removes `t` from slot `s`'s list (keeping the order of the others).
+    fn remove(&mut self, s: u32, t: u32) {
+        let mut ids: [u32; INLINE + 1] = [0; INLINE + 1];
+        let list = self.get(s);
+        if list.len() <= INLINE + 1 {
+            let mut k = 0;
+            for &x in list.iter().filter(|&&x| x != t) {
+                ids[k] = x;
+                k += 1;
+            }
+            self.set(s, &ids[..k]);
+        } else if let Some(long) = self.long.get_mut(&s) {
+            long.retain(|&x| x != t);
+            self.inline[s as usize].len = long.len() as u32;
+        }
     }
 }
 

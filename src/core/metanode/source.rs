@@ -59,10 +59,11 @@ impl FrameSource for NavSource<'_> {
         Ok(stats)
     }
 
-    /// Updates, letting the buffer pool finish its loads between updates, until an update has
-    /// no misses and changes nothing (map and read access: the second update), the time runs
-    /// out, or [`STALL_UPDATES`] updates in a row neither draw more triangles nor miss fewer
-    /// blocks than the best before them.
+    /// Updates, letting the buffer pool finish its loads between updates (waiting for them, up
+    /// to the deadline), until an update has no misses and changes nothing (map and read access:
+    /// the second update), the time runs out, or [`STALL_UPDATES`] updates in a row neither draw
+    /// more triangles nor miss fewer blocks than the best before them. Short of complete, the
+    /// last update's misses and changes say what was left.
     fn converge(&mut self, camera: &Camera, tolerance_px: f64, timeout: std::time::Duration) -> Result<Convergence> {
         let deadline = Instant::now() + timeout;
         let mut c = Convergence::default();
@@ -71,6 +72,7 @@ impl FrameSource for NavSource<'_> {
             let s = self.update(camera, tolerance_px)?;
             c = c.with(&s);
             c.updates += 1;
+            (c.misses_left, c.changes_left) = (s.misses, s.splits + s.collapses);
             if s.misses == 0 && s.splits + s.collapses == 0 && c.updates > 1 {
                 return Ok(c.ended(ConvergeEnd::Complete));
             }
@@ -86,9 +88,17 @@ impl FrameSource for NavSource<'_> {
                 return Ok(c.ended(ConvergeEnd::Timeout));
             }
             if let Some(pool) = self.file.pager().pool() {
-                pool.drain()?;
+                // The loads the misses asked for, within the time left (an update before them
+                // would miss again).
+                if !pool.drain_until(deadline)? {
+                    return Ok(c.ended(ConvergeEnd::Timeout));
+                }
             }
         }
+    }
+
+    fn converges_by_default(&self) -> bool {
+        true
     }
 
     fn frame(&self) -> Frame<'_> {
