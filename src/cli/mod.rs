@@ -359,12 +359,18 @@ pub struct FlyArgs {
     #[arg(long, value_name = "MS", default_value_t = 0.0, requires = "path", allow_negative_numbers = true)]
     pub pace: f64,
     /// Headless: before frame 0, update the first view until it is complete (nothing it needs is
-    /// missing) for at most SECONDS, timed and reported apart from the frames ("converge" in the
-    /// report), so the flight starts from the mesh a still camera would reach; the same before
-    /// any frame that jumps (the eye moves more than half its distance to the look-at point, or
-    /// the view turns more than 30°: "jumps"). Without it frame 0 is the first update.
+    /// missing, and an update changes nothing) for at most SECONDS, timed and reported apart from
+    /// the frames ("converge" in the report: updates, ms, and what was left if time ran out), so
+    /// the flight starts from the mesh a still camera would reach; the same before any frame that
+    /// jumps (the eye moves more than half its distance to the look-at point, or the view turns
+    /// more than 30°: "jumps"). `mesh fly` does this by default for 2 s; elsewhere (and with
+    /// --no-converge) frame 0 is the first update.
     #[arg(long, value_name = "SECONDS", num_args = 0..=1, default_missing_value = "120", requires = "path")]
     pub converge: Option<f64>,
+    /// Headless: do not converge the first view (nor jumps): frame 0 is the first update, as a
+    /// window's is (for measuring how navigation catches up).
+    #[arg(long, conflicts_with = "converge")]
+    pub no_converge: bool,
     /// No progress bars.
     #[arg(long, short)]
     pub quiet: bool,

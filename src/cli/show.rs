@@ -5,7 +5,10 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use relief::camera::{Camera, UpAxis};
-use relief::flight::frame::{fly, ConvergeEnd, FlightOptions, FlightReport, FrameSource, Presenter};
+use relief::flight::frame::{
+    fly, ConvergeEnd, Convergence, FlightOptions, FlightReport, FlightSummary, FrameSource, Presenter,
+    DEFAULT_CONVERGE_TIMEOUT, NODE_CHANGES, PAGE_CHANGES, STRIP_CHANGES,
+};
 use relief::flight::FlightPath;
 use relief::render::Gpu;
 use relief::window::{mesh_window, MeshWindowOptions};
@@ -38,7 +41,11 @@ pub fn headless(
     let cameras = cameras(flight, path, up, fly_args)?;
     let mut options = FlightOptions::new(fly_args.width, fly_args.height, tolerance_px);
     options.pace_ms = fly_args.pace;
-    options.converge_timeout = fly_args.converge.map(std::time::Duration::from_secs_f64);
+    options.converge_timeout = match (fly_args.converge, fly_args.no_converge) {
+        (_, true) => None,
+        (Some(s), false) => Some(std::time::Duration::from_secs_f64(s)),
+        (None, false) => source.converges_by_default().then_some(DEFAULT_CONVERGE_TIMEOUT),
+    };
     options.frames_out = fly_args.frames_out.clone();
     options.stats_out = fly_args.stats.clone();
     options.progress = progress(fly_args.quiet);
@@ -51,11 +58,48 @@ pub fn headless(
     Ok(ExitCode::SUCCESS)
 }
 
+/// What a flight's source changed per frame, in its own counters ([`FrameSource::changes`]).
+fn changes_per_frame(s: &FlightSummary) -> String {
+    match s.changes {
+        NODE_CHANGES => format!(
+            "{:.1} splits + collapses per frame ({:.1} + {:.1}, means), {:.2}% misses",
+            s.splits.mean + s.collapses.mean,
+            s.splits.mean,
+            s.collapses.mean,
+            s.miss_pct
+        ),
+        PAGE_CHANGES => format!(
+            "{:.1} pages gained + lost per frame ({:.1} gained, {:.1} lost, means)",
+            s.pages_gained.mean + s.pages_lost.mean,
+            s.pages_gained.mean,
+            s.pages_lost.mean
+        ),
+        STRIP_CHANGES if s.misses.total > 0.0 => {
+            format!("{:.0} strip vertices per frame (mean), {:.1} blocks missed per frame", s.strip_len.mean, s.misses.mean)
+        }
+        STRIP_CHANGES => format!("{:.0} strip vertices per frame (mean)", s.strip_len.mean),
+        other => format!("changes: {other}"),
+    }
+}
+
+/// How converging stopped, for the summary line: nothing when complete, else why and what was
+/// left.
+fn convergence_end(c: &Convergence) -> String {
+    let left = format!("; left: {} switches missing their meta-nodes, {} still changing", c.misses_left, c.changes_left);
+    match c.end {
+        ConvergeEnd::Complete => String::new(),
+        ConvergeEnd::Timeout => format!(" (incomplete: the time allowed ran out{left})"),
+        ConvergeEnd::Stalled => {
+            format!(" (incomplete: stopped making progress, the view's front does not fit the memory given{left})")
+        }
+    }
+}
+
 /// One line of what a flight did (with a second for the disk-page fetch).
 pub fn print_summary(file: &Path, report: &FlightReport) {
     let s = &report.summary;
     println!(
-        "{} ({}): {} frames at {} x {}, {:.1} fps, frame {:.2} ms, update {:.2} ms, render {:.2} ms (medians), {:.0} triangles and {:.1} {} per frame (mean), {:.2}% misses, {} pages read, {} major / {} minor page faults, {} uploaded ({})",
+        "{} ({}): {} frames at {} x {}, {:.1} fps, frame {:.2} ms, update {:.2} ms, render {:.2} ms (medians), {:.0} triangles per frame (mean), {}, {} pages read, {} major / {} minor page faults, {} uploaded ({})",
         file.display(),
         s.source,
         s.frames,
@@ -66,9 +110,7 @@ pub fn print_summary(file: &Path, report: &FlightReport) {
         s.update_ms.median,
         s.render_ms.median,
         s.triangles.mean,
-        s.splits.mean + s.collapses.mean,
-        s.changes,
-        s.miss_pct,
+        changes_per_frame(s),
         s.pages_read.total,
         s.major_faults.total,
         s.minor_faults.total,
@@ -84,11 +126,7 @@ pub fn print_summary(file: &Path, report: &FlightReport) {
             c.major_faults,
             c.device_requests,
             c.triangles,
-            match c.end {
-                ConvergeEnd::Complete => "",
-                ConvergeEnd::Timeout => " (incomplete: the time allowed ran out)",
-                ConvergeEnd::Stalled => " (incomplete: stopped making progress; the view's front does not fit the memory given)",
-            }
+            convergence_end(c)
         );
     }
     if !s.jumps.is_empty() {

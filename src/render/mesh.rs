@@ -9,7 +9,10 @@
 //! that origin (also computed in f64), so no large number meets the GPU. Nothing else is uploaded:
 //! the face normal comes from screen-space derivatives in the fragment shader (CPU reference:
 //! `render::mesh_shade`), the wireframe from the corner's index (`vertex_index % 3`).
-//! Depth is reversed-z f32 with an infinite far plane, as for terrains.
+//! Depth is reversed-z f32 with an infinite far plane, as for terrains; the near plane comes from
+//! the triangles drawn ([`DrawnBounds`]: boxes around runs of them, made at upload), so a coarse
+//! view-dependent mesh or a culled page set gets the depth range of what is on screen, not of
+//! the whole model.
 
 use glam::DVec3;
 
@@ -90,6 +93,73 @@ pub fn near_plane_m(bounds: &Bounds, eye_in_world: DVec3) -> f64 {
     }
 }
 
+/// Consecutive triangles per box of [`DrawnBounds`].
+pub const TRIANGLES_PER_BOX: usize = 256;
+
+/// Boxes around the triangles of an upload, one per run of [`TRIANGLES_PER_BOX`] consecutive
+/// triangles (world units, of the f32 positions as drawn), and their union: what the depth range
+/// is taken from. A box holds its triangles, so the distance to the nearest box is a lower bound
+/// on the distance to anything drawn (the near plane never clips), and the union's farthest
+/// corner an upper bound.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DrawnBounds {
+    boxes: Vec<Bounds>,
+    all: Option<Bounds>,
+}
+
+impl DrawnBounds {
+    /// The boxes of a triangle list (3 positions per triangle; non-finite coordinates are
+    /// skipped, as the GPU draws nothing sensible of them).
+    pub fn of(positions: &[[f32; 3]]) -> DrawnBounds {
+        let empty = Bounds { min: [f64::INFINITY; 3], max: [f64::NEG_INFINITY; 3] };
+        let grow = |b: &mut Bounds, p: &[f32; 3]| {
+            if p.iter().all(|c| c.is_finite()) {
+                for k in 0..3 {
+                    b.min[k] = b.min[k].min(p[k] as f64);
+                    b.max[k] = b.max[k].max(p[k] as f64);
+                }
+            }
+        };
+        let boxes: Vec<Bounds> = positions
+            .chunks(3 * TRIANGLES_PER_BOX)
+            .map(|run| {
+                let mut b = empty;
+                run.iter().for_each(|p| grow(&mut b, p));
+                b
+            })
+            .filter(|b| b.min[0] <= b.max[0])
+            .collect();
+        let all = boxes.iter().copied().reduce(|mut a, b| {
+            for k in 0..3 {
+                a.min[k] = a.min[k].min(b.min[k]);
+                a.max[k] = a.max[k].max(b.max[k]);
+            }
+            a
+        });
+        DrawnBounds { boxes, all }
+    }
+
+    /// The depth range of what is drawn seen from `eye_in_world`: the distance to the nearest
+    /// box and to the union's farthest corner; `None` when nothing is drawn.
+    pub fn depth_range_m(&self, eye_in_world: DVec3) -> Option<(f64, f64)> {
+        let all = self.all?;
+        let nearest = self.boxes.iter().map(|b| b.distance_to(eye_in_world)).fold(f64::INFINITY, f64::min);
+        let far = (DVec3::from(all.min) - eye_in_world).abs().max((DVec3::from(all.max) - eye_in_world).abs());
+        Some((nearest, far.length()))
+    }
+
+    /// The near plane for `eye_in_world` over what is drawn: a quarter of the distance to the
+    /// nearest box (room for the corners of a wide view, as [`near_plane_m`]), at least
+    /// [`NEAR_OF_DIAGONAL`] of the larger of the union's diagonal and its farthest corner's
+    /// distance (the eye among the triangles), always > 0; `None` when nothing is drawn.
+    pub fn near_plane_m(&self, eye_in_world: DVec3) -> Option<f64> {
+        let (nearest, farthest) = self.depth_range_m(eye_in_world)?;
+        let scale = self.all.map_or(0.0, |b| b.diagonal()).max(farthest);
+        let floor = if scale > 0.0 && scale.is_finite() { NEAR_OF_DIAGONAL * scale } else { 1e-6 };
+        Some(if nearest.is_finite() { (0.25 * nearest).max(floor) } else { floor })
+    }
+}
+
 /// Renders one triangle list at a time.
 pub struct MeshRenderer {
     shade: MeshShadeParams,
@@ -103,6 +173,8 @@ pub struct MeshRenderer {
     vertex_count: u32,
     origin_in_world: DVec3,
     last_upload_bytes: u64,
+    /// Boxes around the uploaded triangles, for the near plane.
+    drawn: DrawnBounds,
 }
 
 impl MeshRenderer {
@@ -190,6 +262,7 @@ impl MeshRenderer {
             vertex_count: 0,
             origin_in_world: DVec3::ZERO,
             last_upload_bytes: 0,
+            drawn: DrawnBounds::default(),
         }
     }
 
@@ -225,6 +298,7 @@ impl MeshRenderer {
         );
         self.vertices.write(&gpu.device, &gpu.queue, bytemuck::cast_slice(&self.staging));
         self.vertex_count = count;
+        self.drawn = DrawnBounds::of(positions);
         self.origin_in_world = o;
         self.last_upload_bytes = bytes;
         Ok(bytes)
@@ -238,6 +312,21 @@ impl MeshRenderer {
     /// Bytes of the last upload.
     pub fn last_upload_bytes(&self) -> u64 {
         self.last_upload_bytes
+    }
+
+    /// Boxes around the uploaded triangles.
+    pub fn drawn_bounds(&self) -> &DrawnBounds {
+        &self.drawn
+    }
+
+    /// The view of `camera` over the uploaded triangles: the near plane from their boxes
+    /// ([`DrawnBounds::near_plane_m`]), or from `bounds` (the whole model's box) before any
+    /// upload or when none was drawn.
+    pub fn view(&self, bounds: &Bounds, camera: Camera) -> MeshView {
+        match self.drawn.near_plane_m(camera.eye_in_world) {
+            Some(near_m) => MeshView { camera, near_m },
+            None => MeshView::new(bounds, camera),
+        }
     }
 
     /// The origin the uploaded positions are relative to.
@@ -298,6 +387,30 @@ mod tests {
     fn the_uniform_matches_the_wgsl_block() {
         // 2 matrices (128) + 7 vec4 (112) + fog, flags and padding (16).
         assert_eq!(MESH_FRAME_UNIFORM_BYTES, 256);
+    }
+
+    #[test]
+    fn the_near_plane_follows_the_drawn_triangles_and_never_clips_them() {
+        // Two runs of triangles: one near x = 10, one near x = 100 (a box each).
+        let tri = |x: f32| [[x, 0.0, 0.0], [x, 1.0, 0.0], [x, 0.0, 1.0]];
+        let mut list: Vec<[f32; 3]> = (0..TRIANGLES_PER_BOX).flat_map(|_| tri(10.0)).collect();
+        list.extend((0..TRIANGLES_PER_BOX).flat_map(|_| tri(100.0)));
+        let d = DrawnBounds::of(&list);
+        let eye = DVec3::new(0.0, 0.5, 0.5);
+        let (nearest, farthest) = d.depth_range_m(eye).unwrap();
+        assert!((nearest - 10.0).abs() < 1e-12, "{nearest}");
+        assert!(farthest >= 100.0 && farthest < 101.0, "{farthest}");
+        assert!((d.near_plane_m(eye).unwrap() - 2.5).abs() < 1e-12);
+        // Every drawn corner is beyond the near plane.
+        let near = d.near_plane_m(eye).unwrap();
+        assert!(list.iter().all(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64).distance(eye) > near));
+        // Among the triangles: the floor, a small fraction of the depth range, > 0.
+        let inside = d.near_plane_m(DVec3::new(10.0, 0.2, 0.2)).unwrap();
+        assert!(inside > 0.0 && inside <= NEAR_OF_DIAGONAL * 91.0, "{inside}");
+        assert_eq!(DrawnBounds::of(&[]).near_plane_m(eye), None);
+        // Only the far run drawn: the near plane moves out with it.
+        let far_only = DrawnBounds::of(&list[3 * TRIANGLES_PER_BOX..]);
+        assert!((far_only.near_plane_m(eye).unwrap() - 25.0).abs() < 1e-12);
     }
 
     #[test]

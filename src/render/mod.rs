@@ -16,7 +16,7 @@ pub mod terrain;
 mod vertex_buffer;
 
 pub use gpu::Gpu;
-pub use mesh::{MeshRenderer, MeshStyle, MeshView};
+pub use mesh::{DrawnBounds, MeshRenderer, MeshStyle, MeshView};
 pub use offscreen::Offscreen;
 pub use present::{render_still, save_png, MeshPresenter, MeshStage, StillOptions, StillReport, TerrainPresenter};
 pub use shade::{Look, Ramp};

@@ -12,7 +12,7 @@ use serde::Serialize;
 use super::mesh_shade::MeshShadeParams;
 use super::offscreen::OFFSCREEN_FORMAT;
 use super::{
-    DrawStyle, FrameView, Gpu, MeshRenderer, MeshStyle, MeshView, Offscreen, RendererOptions, TerrainRenderer,
+    DrawStyle, FrameView, Gpu, MeshRenderer, MeshStyle, Offscreen, RendererOptions, TerrainRenderer,
 };
 use crate::camera::{Camera, UpAxis};
 use crate::error::{Error, Result};
@@ -165,7 +165,12 @@ impl MeshStage {
         camera: &Camera,
         style: MeshStyle,
     ) -> u64 {
-        self.renderer.encode(gpu, encoder, colour, depth, &MeshView::new(&self.bounds, *camera), style)
+        let mut view = self.renderer.view(&self.bounds, *camera);
+        // TEMP diagnostic (not to be committed).
+        if let Some(k) = std::env::var("RELIEF_DEBUG_NEAR_SCALE").ok().and_then(|v| v.parse::<f64>().ok()) {
+            view.near_m *= k;
+        }
+        self.renderer.encode(gpu, encoder, colour, depth, &view, style)
     }
 
     /// Draws the uploaded triangles seen by `camera` offscreen in `format` and reads the image back.

@@ -8,7 +8,7 @@ use winit::keyboard::KeyCode;
 use super::{FlyCamera, Scene, WindowSettings};
 use crate::camera::{Camera, UpAxis};
 use crate::error::Result;
-use crate::flight::frame::{FrameSource, FrameStats};
+use crate::flight::frame::{FrameSource, FrameStats, PAGE_CHANGES};
 use crate::flight::{orbit_box, OrbitOptions};
 use crate::render::mesh::MESH_FRAME_UNIFORM_BYTES;
 use crate::render::MeshStage;
@@ -122,7 +122,11 @@ impl Scene for MeshScene<'_> {
         let triangles = self.stage.as_ref().map_or(0, |st| st.renderer.triangles());
         vec![
             ("source", self.options.source_name.clone()),
-            ("adapt", format!("{} ({} splits, {} collapses)", s.splits + s.collapses, s.splits, s.collapses)),
+            if self.source.changes() == PAGE_CHANGES {
+                ("pages", format!("{} gained, {} lost", s.pages_gained, s.pages_lost))
+            } else {
+                ("adapt", format!("{} ({} splits, {} collapses)", s.splits + s.collapses, s.splits, s.collapses))
+            },
             ("adapt time", format!("{:.2} ms", s.update_ms.unwrap_or(0.0))),
             ("triangles", format!("{triangles}")),
             ("misses", format!("{} ({:.1}%)", s.misses, s.miss_pct())),

@@ -17,7 +17,7 @@ use std::time::Instant;
 use super::kdtree::{back_facing, box_in_frustum, query_frustum};
 use crate::camera::Camera;
 use crate::error::Result;
-use crate::flight::frame::{Frame, FrameSource, FrameStats};
+use crate::flight::frame::{Frame, FrameSource, FrameStats, PAGE_CHANGES};
 use crate::format::pagefile::PageFile;
 use crate::mesh::Bounds;
 use crate::pager::{BlockBuf, ReadStats};
@@ -164,8 +164,8 @@ impl FrameSource for PageSource {
             update_ms: Some(started.elapsed().as_secs_f64() * 1e3),
             changed: gained + lost > 0 || !self.shown,
             triangles: self.triangles.len() as u64 / 3,
-            splits: gained,
-            collapses: lost,
+            pages_gained: gained,
+            pages_lost: lost,
             pages_read: reads.pages - self.reads.pages,
             bytes_read: reads.bytes - self.reads.bytes,
             pages_candidate: self.candidates.len() as u64,
@@ -191,7 +191,7 @@ impl FrameSource for PageSource {
     }
 
     fn changes(&self) -> &'static str {
-        "pages gained + lost"
+        PAGE_CHANGES
     }
 
     fn describe(&self) -> String {

@@ -69,10 +69,20 @@ pub trait FrameSource {
     fn bounds(&self) -> Bounds;
     /// What the source is, for reports ("terrain, interleaved, map", …).
     fn describe(&self) -> String;
-    /// What [`FrameStats::splits`] and [`FrameStats::collapses`] count for this source, in
-    /// words for reports: nodes split and collapsed by default.
+    /// What the source changes from frame to frame, in words for reports (`summary.changes`):
+    /// one of [`NODE_CHANGES`] (the default: nodes split and collapsed, [`FrameStats::splits`]
+    /// and [`FrameStats::collapses`]), [`PAGE_CHANGES`] ([`FrameStats::pages_gained`] and
+    /// [`FrameStats::pages_lost`]), [`STRIP_CHANGES`] or [`NO_CHANGES`]; the summary line
+    /// prints the counters it names.
     fn changes(&self) -> &'static str {
-        "splits + collapses"
+        NODE_CHANGES
+    }
+    /// Whether a flight should converge the first view (and every jump) before drawing it
+    /// unless told otherwise: a source whose single update can stop short of the view's front
+    /// (the meta-node navigator, whose pool puts off what it misses). The command line then
+    /// converges for [`DEFAULT_CONVERGE_TIMEOUT`].
+    fn converges_by_default(&self) -> bool {
+        false
     }
     /// Updates for `camera` until nothing the view needs is missing (a remote source waiting for
     /// its fetches), at most `timeout`; the number of updates, or `None` for a source that never
@@ -90,6 +100,21 @@ pub trait FrameSource {
         Ok(Convergence { updates: 1, ..Convergence::default() }.with(&s).ended(ConvergeEnd::Complete))
     }
 }
+
+/// [`FrameSource::changes`] of the meta-node navigator: nodes split and collapsed.
+pub const NODE_CHANGES: &str = "splits + collapses";
+/// [`FrameSource::changes`] of the disk-page fetch: pages that entered and left the frame's
+/// working set ([`FrameStats::pages_gained`], [`FrameStats::pages_lost`]).
+pub const PAGE_CHANGES: &str = "pages gained + lost";
+/// [`FrameSource::changes`] of terrain refinement: the strip is refined anew each frame, so
+/// there is no split or collapse to count; its length ([`FrameStats::strip_len`]) is the figure.
+pub const STRIP_CHANGES: &str = "strip vertices";
+/// [`FrameSource::changes`] of a source that never changes ([`StaticMesh`]).
+pub const NO_CHANGES: &str = "none";
+
+/// How long a flight converges the first view and every jump by default, for sources that
+/// [converge by default](FrameSource::converges_by_default).
+pub const DEFAULT_CONVERGE_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(2);
 
 /// Why converging the first view stopped.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -146,6 +171,11 @@ pub struct Convergence {
     pub pages_read: u64,
     pub device_requests: u64,
     pub device_ms: f64,
+    /// What was left when converging stopped short (0 when complete): the last update's wanted
+    /// switches put off because their block was not in memory, and its splits and collapses
+    /// (the front was still moving).
+    pub misses_left: u64,
+    pub changes_left: u64,
 }
 
 impl Convergence {
@@ -177,9 +207,13 @@ pub struct FrameStats {
     pub triangles: u64,
     /// Strip vertices (terrains).
     pub strip_len: u64,
-    /// Nodes split and collapsed (meta-node trees), pages gained and lost (disk pages).
+    /// Nodes split and collapsed (meta-node trees; 0 for other backends).
     pub splits: u64,
     pub collapses: u64,
+    /// The disk-page fetch: pages in this frame's set that were not in the last one's, and pages
+    /// of the last frame's set that this one dropped (0 for other backends).
+    pub pages_gained: u64,
+    pub pages_lost: u64,
     /// Wanted splits or collapses put off because their block was not in memory (pool access).
     pub misses: u64,
     /// Pool holders taken back off the free list with their block intact.
@@ -354,7 +388,7 @@ pub struct FlightSummary {
     pub tolerance_px: f64,
     /// What was flown ([`FrameSource::describe`]).
     pub source: String,
-    /// What `splits` and `collapses` count for it ([`FrameSource::changes`]).
+    /// What it changes from frame to frame ([`FrameSource::changes`]): which counters are its own.
     pub changes: &'static str,
     /// The device that drew it, or why none did.
     pub adapter: String,
@@ -371,6 +405,8 @@ pub struct FlightSummary {
     pub upload_bytes: Summary,
     pub splits: Summary,
     pub collapses: Summary,
+    pub pages_gained: Summary,
+    pub pages_lost: Summary,
     pub misses: Summary,
     pub second_chance_hits: Summary,
     pub pages_read: Summary,
@@ -443,7 +479,7 @@ impl FlightSummary {
             height: options.height_px,
             tolerance_px: options.tolerance_px,
             source,
-            changes: "splits + collapses",
+            changes: NODE_CHANGES,
             adapter,
             resident_gpu_bytes: 0,
             miss_pct: pct(total(|f| f.stats.misses), total(|f| f.stats.splits + f.stats.collapses)),
@@ -455,6 +491,8 @@ impl FlightSummary {
             upload_bytes: s(|f| f.upload_bytes as f64),
             splits: s(|f| f.stats.splits as f64),
             collapses: s(|f| f.stats.collapses as f64),
+            pages_gained: s(|f| f.stats.pages_gained as f64),
+            pages_lost: s(|f| f.stats.pages_lost as f64),
             misses: s(|f| f.stats.misses as f64),
             second_chance_hits: s(|f| f.stats.second_chance_hits as f64),
             pages_read: s(|f| f.stats.pages_read as f64),
@@ -670,6 +708,10 @@ impl FrameSource for StaticMesh {
 
     fn describe(&self) -> String {
         "whole mesh".into()
+    }
+
+    fn changes(&self) -> &'static str {
+        NO_CHANGES
     }
 }
 

@@ -402,6 +402,10 @@ impl FrameSource for TerrainSource {
         Bounds { min: [0.0, 0.0, h.z_min], max: [ex, ey, h.z_max] }
     }
 
+    fn changes(&self) -> &'static str {
+        super::frame::STRIP_CHANGES
+    }
+
     fn describe(&self) -> String {
         let name = self.terrain.path().file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
         format!(

@@ -21,17 +21,19 @@
 //! naming the file.
 
 pub mod export;
+mod input;
 mod obj;
 mod off;
 mod ply;
 mod terrain;
+mod text;
 
-use std::io::Read;
 use std::path::Path;
 
 use serde::Serialize;
 
 use crate::error::{Error, IoContext, Result};
+use input::{Input, StreamError};
 
 pub use ply::{write_ply_binary, write_ply_bytes, PlyEncoding};
 pub use terrain::terrain_mesh;
@@ -132,42 +134,50 @@ pub fn read_mesh(path: &Path) -> Result<Mesh> {
 
 /// [`read_mesh`], also returning what was found on the way.
 pub fn read_mesh_with_report(path: &Path) -> Result<(Mesh, MeshReport)> {
-    let raw = std::fs::read(path).at(path)?;
-    if raw.is_empty() {
+    let Some(mut input) = Input::open(path).at(path)? else {
         return Err(Error::bad_mesh(path, "empty file"));
+    };
+    let parsed = parse(path, &mut input);
+    // Whatever the parser found, a read error, a corrupt gzip stream or text that is not UTF-8
+    // anywhere in the input comes first (as when the input was read whole before parsing).
+    match input.finish() {
+        Some(StreamError::Io(e)) => Err(Error::io(path, e)),
+        Some(StreamError::Gzip(e)) => Err(Error::bad_mesh(path, format!("gzip: {e}"))),
+        Some(StreamError::NotText(e)) => Err(Error::bad_mesh(path, e)),
+        None => parsed.map_err(|e| Error::bad_mesh(path, e)),
     }
-    let gzip = raw.starts_with(&[0x1f, 0x8b]);
-    let bytes = if gzip {
-        let mut out = Vec::with_capacity(raw.len() * 4);
-        flate2::read::MultiGzDecoder::new(&raw[..])
-            .read_to_end(&mut out)
-            .map_err(|e| Error::bad_mesh(path, format!("gzip: {e}")))?;
-        if out.is_empty() {
-            return Err(Error::bad_mesh(path, "empty file (inside gzip)"));
-        }
-        out
+}
+
+/// Detects the format and parses the input (read up to where the parser stopped).
+fn parse(path: &Path, input: &mut Input) -> Result<(Mesh, MeshReport), String> {
+    let gzip = input.is_gzip();
+    if !input.more() && input.window().is_empty() {
+        // Nothing decompressed: a gzip error, if any, is reported by `finish`.
+        return Err("empty file (inside gzip)".into());
+    }
+    let mut builder = Builder { input_bytes: input.size_hint(), ..Builder::default() };
+    input.fill(3);
+    let format = if input.window().starts_with(b"ply") {
+        ply::parse(input, &mut builder)?
     } else {
-        raw
-    };
-    let bad = |problem: String| Error::bad_mesh(path, problem);
-    let mut builder = Builder { input_bytes: bytes.len(), ..Builder::default() };
-    let format = if bytes.starts_with(b"ply") {
-        ply::parse(&bytes, &mut builder).map_err(bad)?
-    } else if first_word(&bytes) == Some(b"OFF".as_slice()) {
-        off::parse(&bytes, &mut builder).map_err(bad)?;
-        MeshFormat::Off
-    } else if is_obj(path, &bytes) {
-        obj::parse(&bytes, &mut builder).map_err(bad)?;
-        MeshFormat::Obj
-    } else {
-        let what = if first_word(&bytes).is_some_and(|w| w.starts_with(b"OFF") || w.ends_with(b"OFF")) {
-            "unsupported OFF variant (only plain 'OFF' is read)"
+        let word = first_word_of(input);
+        let word = word.as_deref();
+        if word == Some(b"OFF".as_slice()) {
+            off::parse(input, &mut builder)?;
+            MeshFormat::Off
+        } else if is_obj(path, word) {
+            obj::parse(input, &mut builder)?;
+            MeshFormat::Obj
         } else {
-            "unknown mesh format (expected a 'ply' or 'OFF' header, or an .obj file)"
-        };
-        return Err(bad(what.to_string()));
+            let what = if word.is_some_and(|w| w.starts_with(b"OFF") || w.ends_with(b"OFF")) {
+                "unsupported OFF variant (only plain 'OFF' is read)"
+            } else {
+                "unknown mesh format (expected a 'ply' or 'OFF' header, or an .obj file)"
+            };
+            return Err(what.to_string());
+        }
     };
-    builder.finish(format, gzip).map_err(bad)
+    builder.finish(format, gzip)
 }
 
 /// The first whitespace-separated word of the file, skipping `#` comment lines.
@@ -179,12 +189,32 @@ fn first_word(bytes: &[u8]) -> Option<&[u8]> {
         .find(|w| !w.is_empty())
 }
 
+/// [`first_word`] of the whole input, reading ahead (nothing consumed) until the word is known.
+fn first_word_of(input: &mut Input) -> Option<Vec<u8>> {
+    // Lines before `scanned` hold no word.
+    let mut scanned = 0;
+    loop {
+        let w = input.window();
+        let complete = match memchr::memrchr(b'\n', &w[scanned..]) {
+            Some(i) => scanned + i + 1,
+            None => scanned,
+        };
+        if let Some(word) = first_word(&w[scanned..complete]) {
+            return Some(word.to_vec());
+        }
+        scanned = complete;
+        if input.at_end() || !input.more() {
+            return first_word(&input.window()[scanned..]).map(<[u8]>::to_vec);
+        }
+    }
+}
+
 /// OBJ has no magic: trust the extension (under an optional `.gz`), else a leading `v`/`o`/`g`
 /// statement.
-fn is_obj(path: &Path, bytes: &[u8]) -> bool {
+fn is_obj(path: &Path, first_word: Option<&[u8]>) -> bool {
     let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
     let name = name.strip_suffix(".gz").unwrap_or(&name);
-    name.ends_with(".obj") || matches!(first_word(bytes), Some(b"v" | b"o" | b"g" | b"vn" | b"vt" | b"mtllib"))
+    name.ends_with(".obj") || matches!(first_word, Some(b"v" | b"o" | b"g" | b"vn" | b"vt" | b"mtllib"))
 }
 
 /// Collects vertices and faces for every parser, so validation and triangulation are written
@@ -210,6 +240,7 @@ impl Builder {
         self.mesh.triangles.reserve(faces.min(most));
     }
 
+    #[inline]
     fn vertex(&mut self, p: [f64; 3]) -> Result<(), String> {
         if let Some(bad) = p.iter().find(|c| !c.is_finite()) {
             return Err(format!("vertex {}: non-finite coordinate {bad}", self.mesh.positions.len()));
@@ -241,6 +272,22 @@ impl Builder {
         Ok(())
     }
 
+    /// [`Builder::face`] of a triangle (the fast paths' common case).
+    #[inline]
+    fn triangle(&mut self, t: [u32; 3], vertex_count: usize) -> Result<(), String> {
+        let face = self.faces;
+        self.faces += 1;
+        if let Some(&i) = t.iter().find(|&&i| i as usize >= vertex_count) {
+            return Err(format!("face {face}: vertex index {i} out of range ({vertex_count} vertices)"));
+        }
+        if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+            self.degenerate_dropped += 1;
+        } else {
+            self.mesh.triangles.push(t);
+        }
+        Ok(())
+    }
+
     fn finish(self, format: MeshFormat, gzip: bool) -> Result<(Mesh, MeshReport), String> {
         if self.mesh.triangles.is_empty() {
             let why = if self.faces == 0 { "no faces" } else { "every face is degenerate" };
@@ -249,9 +296,4 @@ impl Builder {
         let report = MeshReport { format, gzip, faces: self.faces, degenerate_dropped: self.degenerate_dropped };
         Ok((self.mesh, report))
     }
-}
-
-/// Parses a number token, naming what it was for in the error.
-fn parse_f64(token: &str, what: impl FnOnce() -> String) -> Result<f64, String> {
-    token.parse::<f64>().map_err(|_| format!("{}: expected a number, found '{token}'", what()))
 }

@@ -110,9 +110,7 @@ pub fn collapse(mesh: &Mesh, metric: VdtMetric, progress: &crate::sys::progress:
             "a VDT needs 1 to 2^31 vertices and fewer than 2^32 − 1 triangles; this mesh has {n} and {t}"
         )));
     }
-    let t0 = std::time::Instant::now();
     let mut engine = Engine::new(mesh, metric);
-    let t1 = std::time::Instant::now();
     let bar = progress.bar("vdt build", n.saturating_sub(1) as u64, "collapses");
     let mut steps = 0u64;
     while let Some(key) = engine.pop() {
@@ -124,7 +122,6 @@ pub fn collapse(mesh: &Mesh, metric: VdtMetric, progress: &crate::sys::progress:
         engine.process(key)?;
     }
     bar.finish_and_clear();
-    let t2 = std::time::Instant::now();
     let out = engine.finish();
     Ok(out)
 }

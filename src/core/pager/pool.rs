@@ -838,6 +838,30 @@ impl<L: BlockLoader> BufferPool<L> {
         }
     }
 
+    /// [`drain`](Self::drain) until `deadline` at most: waits (on the I/O threads' idle signal,
+    /// never spinning) until the command board is empty and every I/O thread idle, or the
+    /// deadline passes. Whether it drained; a loader error as `drain`'s.
+    pub fn drain_until(&self, deadline: std::time::Instant) -> Result<bool> {
+        self.hold(false);
+        let mut b = lock(&self.shared.board);
+        let mut drained = true;
+        while (!b.queue.is_empty() || b.busy > 0) && !b.stopped {
+            let Some(left) = deadline.checked_duration_since(std::time::Instant::now()).filter(|d| !d.is_zero())
+            else {
+                drained = false;
+                break;
+            };
+            b = self.shared.idle.wait_timeout(b, left).map_or_else(|p| p.into_inner().0, |(b, _)| b);
+        }
+        let stopped = b.stopped;
+        drop(b);
+        match self.take_error() {
+            Some(e) => Err(e),
+            None if stopped => Err(Error::Pool("the I/O thread stopped after a loader error".into())),
+            None => Ok(drained),
+        }
+    }
+
     /// The loader error that stopped the I/O thread, once (later prefetches are not executed).
     pub fn take_error(&self) -> Option<Error> {
         lock(&self.shared.error).take()
