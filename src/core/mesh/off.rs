@@ -16,8 +16,12 @@ enum State {
     Magic,
     /// Waiting for the counts line (line number of `OFF` for nothing).
     Counts,
-    Vertices { v: usize },
-    Faces { f: usize },
+    Vertices {
+        v: usize,
+    },
+    Faces {
+        f: usize,
+    },
     Done,
 }
 
@@ -96,8 +100,7 @@ impl Off<'_> {
                     },
                 };
                 self.b.vertex(p)?;
-                self.state =
-                    if v + 1 < self.vertices { State::Vertices { v: v + 1 } } else { self.after_vertices() };
+                self.state = if v + 1 < self.vertices { State::Vertices { v: v + 1 } } else { self.after_vertices() };
             }
             State::Faces { f } => {
                 let l = before_comment(raw);
