@@ -63,6 +63,7 @@ pub(super) struct Input {
     /// Bytes the input can hold at most, as far as known before reading it: the file's length,
     /// or for gzip the smaller of the trailer's length and the most deflate can expand.
     size_hint: usize,
+    chunk: usize,
     io_error: Option<io::Error>,
     gzip_error: Option<String>,
     /// The UTF-8 check of a text format and the text's name in its message.
@@ -70,8 +71,9 @@ pub(super) struct Input {
 }
 
 impl Input {
-    /// Opens `path`: gzip'd (magic 1f 8b) or plain. `Ok(None)` for an empty file.
-    pub(super) fn open(path: &std::path::Path) -> io::Result<Option<Input>> {
+    /// Opens `path`: gzip'd (magic 1f 8b) or plain, read `chunk` bytes at a time ([`CHUNK`]
+    /// but in tests). `Ok(None)` for an empty file.
+    pub(super) fn open(path: &std::path::Path, chunk: usize) -> io::Result<Option<Input>> {
         let mut file = File::open(path)?;
         let len = file.metadata().map(|m| if m.is_file() { m.len() } else { 0 }).unwrap_or(0);
         let mut magic = [0u8; 2];
@@ -91,9 +93,9 @@ impl Input {
         let (source, buf, size_hint) = if gzip {
             let hint = gzip_size_hint(&file, len);
             let prefix = io::Cursor::new(magic);
-            (Source::Gzip(Gzip::spawn(prefix.chain(file))), Vec::new(), hint)
+            (Source::Gzip(Gzip::spawn(prefix.chain(file), chunk)), Vec::new(), hint)
         } else {
-            let mut buf = Vec::with_capacity(CHUNK + 64);
+            let mut buf = Vec::with_capacity(chunk + 64);
             buf.extend_from_slice(&magic[..got]);
             (Source::Plain(file), buf, usize::try_from(len).unwrap_or(usize::MAX))
         };
@@ -105,6 +107,7 @@ impl Input {
             source,
             gzip,
             size_hint,
+            chunk,
             io_error: None,
             gzip_error: None,
             utf8: None,
@@ -163,7 +166,7 @@ impl Input {
         let start = self.buf.len();
         match &mut self.source {
             Source::Plain(file) => loop {
-                match file.by_ref().take(CHUNK as u64).read_to_end(&mut self.buf) {
+                match file.by_ref().take(self.chunk as u64).read_to_end(&mut self.buf) {
                     Ok(0) => {
                         self.eof = true;
                         break;
@@ -265,7 +268,7 @@ fn gzip_size_hint(file: &File, len: u64) -> usize {
 }
 
 impl Gzip {
-    fn spawn<R: Read + Send + 'static>(compressed: R) -> Gzip {
+    fn spawn<R: Read + Send + 'static>(compressed: R, size: usize) -> Gzip {
         let (tx, rx) = sync_channel(GZIP_QUEUE);
         let (free, free_rx) = channel::<Vec<u8>>();
         let thread = std::thread::Builder::new().name("relief-gunzip".into()).spawn(move || {
@@ -274,9 +277,9 @@ impl Gzip {
             let tracked = Tracked { inner: compressed, error: Rc::clone(&read_error) };
             let mut decoder = flate2::read::MultiGzDecoder::new(tracked);
             loop {
-                let mut chunk = free_rx.try_recv().unwrap_or_else(|_| Vec::with_capacity(CHUNK));
+                let mut chunk = free_rx.try_recv().unwrap_or_else(|_| Vec::with_capacity(size));
                 chunk.clear();
-                let r = decoder.by_ref().take(CHUNK as u64).read_to_end(&mut chunk);
+                let r = decoder.by_ref().take(size as u64).read_to_end(&mut chunk);
                 let end = match r {
                     Ok(0) => break,
                     Ok(_) => None,

@@ -25,7 +25,11 @@ mod input;
 mod obj;
 mod off;
 mod ply;
+#[cfg(test)]
+mod reference;
 mod terrain;
+#[cfg(test)]
+mod tests;
 mod text;
 
 use std::path::Path;
@@ -134,7 +138,12 @@ pub fn read_mesh(path: &Path) -> Result<Mesh> {
 
 /// [`read_mesh`], also returning what was found on the way.
 pub fn read_mesh_with_report(path: &Path) -> Result<(Mesh, MeshReport)> {
-    let Some(mut input) = Input::open(path).at(path)? else {
+    read_chunked(path, input::CHUNK)
+}
+
+/// [`read_mesh_with_report`], reading `chunk` bytes at a time.
+fn read_chunked(path: &Path, chunk: usize) -> Result<(Mesh, MeshReport)> {
+    let Some(mut input) = Input::open(path, chunk).at(path)? else {
         return Err(Error::bad_mesh(path, "empty file"));
     };
     let parsed = parse(path, &mut input);
