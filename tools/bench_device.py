@@ -85,6 +85,10 @@ def fly(tree, path, mode, memory, cap, latency, tolerance, frames_out, a=None):
         args += ["--device-latency", str(latency)]
     if a is not None and a.converge:
         args += ["--converge", str(a.converge)]
+    else:
+        # mesh fly converges the first view by default (issue 23); the sweeps measure frame 0 as
+        # the navigation's first update unless --converge is asked for.
+        args += ["--no-converge"]
     if a is not None and mode == "ext":
         args += ["--coalesce", a.coalesce, "--io-threads", str(a.io_threads), "--prefetch", a.prefetch]
     out, _ = run(args)

@@ -75,7 +75,10 @@ fn changes_per_frame(s: &FlightSummary) -> String {
             s.pages_lost.mean
         ),
         STRIP_CHANGES if s.misses.total > 0.0 => {
-            format!("{:.0} strip vertices per frame (mean), {:.1} blocks missed per frame", s.strip_len.mean, s.misses.mean)
+            format!(
+                "{:.0} strip vertices per frame (mean), {:.1} blocks missed per frame",
+                s.strip_len.mean, s.misses.mean
+            )
         }
         STRIP_CHANGES => format!("{:.0} strip vertices per frame (mean)", s.strip_len.mean),
         other => format!("changes: {other}"),
@@ -85,7 +88,8 @@ fn changes_per_frame(s: &FlightSummary) -> String {
 /// How converging stopped, for the summary line: nothing when complete, else why and what was
 /// left.
 fn convergence_end(c: &Convergence) -> String {
-    let left = format!("; left: {} switches missing their meta-nodes, {} still changing", c.misses_left, c.changes_left);
+    let left =
+        format!("; left: {} switches missing their meta-nodes, {} still changing", c.misses_left, c.changes_left);
     match c.end {
         ConvergeEnd::Complete => String::new(),
         ConvergeEnd::Timeout => format!(" (incomplete: the time allowed ran out{left})"),

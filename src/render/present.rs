@@ -11,9 +11,7 @@ use serde::Serialize;
 
 use super::mesh_shade::MeshShadeParams;
 use super::offscreen::OFFSCREEN_FORMAT;
-use super::{
-    DrawStyle, FrameView, Gpu, MeshRenderer, MeshStyle, Offscreen, RendererOptions, TerrainRenderer,
-};
+use super::{DrawStyle, FrameView, Gpu, MeshRenderer, MeshStyle, Offscreen, RendererOptions, TerrainRenderer};
 use crate::camera::{Camera, UpAxis};
 use crate::error::{Error, Result};
 use crate::flight::frame::{Frame, FrameSource, Presenter};
@@ -165,12 +163,7 @@ impl MeshStage {
         camera: &Camera,
         style: MeshStyle,
     ) -> u64 {
-        let mut view = self.renderer.view(&self.bounds, *camera);
-        // TEMP diagnostic (not to be committed).
-        if let Some(k) = std::env::var("RELIEF_DEBUG_NEAR_SCALE").ok().and_then(|v| v.parse::<f64>().ok()) {
-            view.near_m *= k;
-        }
-        self.renderer.encode(gpu, encoder, colour, depth, &view, style)
+        self.renderer.encode(gpu, encoder, colour, depth, &self.renderer.view(&self.bounds, *camera), style)
     }
 
     /// Draws the uploaded triangles seen by `camera` offscreen in `format` and reads the image back.

@@ -74,7 +74,7 @@ fn mesh_fly_virt_waits_for_every_fault_and_ext_for_none() {
     let path = dir.path().join("orbit.json");
     common::make_path("orbit", &tree, 8, &path);
 
-    let (plain, slow) = both(&["mesh", "fly", "--mode", "virt", "--cold"], &tree, &path);
+    let (plain, slow) = both(&["mesh", "fly", "--mode", "virt", "--cold", "--no-converge"], &tree, &path);
     // The same meshes, frame by frame.
     assert_eq!(per_frame(&plain, "triangles"), per_frame(&slow, "triangles"));
     assert_eq!(per_frame(&plain, "splits"), per_frame(&slow, "splits"));
@@ -91,14 +91,18 @@ fn mesh_fly_virt_waits_for_every_fault_and_ext_for_none() {
     assert_eq!(total(&plain, "device_requests"), 0.0);
 
     // With the OS's readahead on, each fault reads a window: fewer requests for the same meshes.
-    let (_, ahead) = both(&["mesh", "fly", "--mode", "virt", "--cold", "--readahead"], &tree, &path);
+    let (_, ahead) = both(&["mesh", "fly", "--mode", "virt", "--cold", "--readahead", "--no-converge"], &tree, &path);
     assert_eq!(per_frame(&plain, "triangles"), per_frame(&ahead, "triangles"));
     let fewer = total(&ahead, "device_requests");
     assert!(fewer > 0.0 && fewer < 0.5 * requests, "{fewer} requests with readahead, {requests} without");
 
     // Ext never waits: its frames stay fast whatever the device, the pool's reads charged in
     // the background (paced frames give the I/O thread the time a renderer would).
-    let (_, ext) = both(&["mesh", "fly", "--mode", "ext", "--memory", "1/8", "--cold", "--pace", "5"], &tree, &path);
+    let (_, ext) = both(
+        &["mesh", "fly", "--mode", "ext", "--memory", "1/8", "--cold", "--pace", "5", "--no-converge"],
+        &tree,
+        &path,
+    );
     let requests = total(&ext, "device_requests");
     assert!(requests > 0.0 && total(&ext, "device_ms") >= requests * LATENCY_MS, "{}", ext["summary"]);
     assert!(total(&ext, "update_ms") < requests * LATENCY_MS, "ext does not wait for its reads");
@@ -185,8 +189,9 @@ fn layouts_os_runs_report_time_under_the_device() {
 }
 
 /// Issue 23's first-frame test: on a slow device an Ext flight's frame 0 is coarse unless the
-/// first view converges first; converged, it has the triangles of Virt's (every block at hand)
-/// frame 0 of the same view, with one I/O thread or several and coalesced reads.
+/// first view converges first (the default; `--no-converge` turns it off); converged, it has the
+/// triangles of Virt's (every block at hand) frame 0 of the same view, with one I/O thread or
+/// several and coalesced reads.
 #[test]
 fn converging_first_makes_frame_0_as_fine_as_a_still_camera_would_get() {
     let dir = tempfile::tempdir().unwrap();
@@ -198,7 +203,7 @@ fn converging_first_makes_frame_0_as_fine_as_a_still_camera_would_get() {
     let still = triangles_at_0(&fly(&["--mode", "virt"]));
     assert!(still > 1000.0, "{still}");
     let ext = ["--mode", "ext", "--memory", "16M", "--device-latency", "2"];
-    let coarse = triangles_at_0(&fly(&ext));
+    let coarse = triangles_at_0(&fly(&[&ext[..], &["--no-converge"]].concat()));
     assert!(coarse < 0.5 * still, "without converging frame 0 has {coarse} of {still} triangles");
     for io in [&["--io-threads", "1"][..], &["--io-threads", "3", "--coalesce", "64K"]] {
         let r = fly(&[&ext[..], io, &["--converge", "120"]].concat());

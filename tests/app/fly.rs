@@ -94,6 +94,13 @@ fn fly_cli_writes_frames_and_stats() {
         assert!(summary[key]["median"].is_number() && summary[key]["mean"].is_number(), "summary lacks {key}");
     }
     assert_eq!(summary["frames"], 3);
+    // A terrain's strip is refined anew each frame: its figure is the strip, not splits.
+    assert_eq!(summary["changes"], "strip vertices");
+    assert!(summary["strip_len"]["mean"].as_f64().is_some_and(|x| x > 0.0), "{summary}");
+    let text =
+        relief().arg("fly").arg(&file).arg("--path").arg(&path).args(["--no-render", "--quiet"]).output().unwrap();
+    let line = String::from_utf8_lossy(&text.stdout);
+    assert!(line.contains(" strip vertices per frame (mean)") && !line.contains("splits"), "{line}");
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
     let per_frame = report["frames"].as_array().unwrap();
     assert_eq!(per_frame.len(), 3);

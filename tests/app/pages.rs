@@ -255,7 +255,24 @@ fn pages_build_and_fly_commands() {
         }
         assert_eq!(f["bytes_read"].as_u64().unwrap(), 8192 * f["pages_requested"].as_u64().unwrap());
     }
+    // Pages gained and lost: the working set's changes, frame to frame (the first frame gains its
+    // whole set); nothing is split or collapsed.
+    let n = |f: &serde_json::Value, key: &str| f[key].as_u64().unwrap_or_else(|| panic!("frame key {key}: {f}"));
+    assert!(n(&frames[0], "pages_gained") > 0, "{}", frames[0]);
+    assert_eq!(n(&frames[0], "pages_gained"), n(&frames[0], "pages_requested"));
+    assert_eq!(n(&frames[0], "pages_lost"), 0);
+    for w in frames.windows(2) {
+        let set = n(&w[0], "pages_requested") + n(&w[1], "pages_gained") - n(&w[1], "pages_lost");
+        assert_eq!(set, n(&w[1], "pages_requested"), "{} then {}", w[0], w[1]);
+        assert!(n(&w[1], "pages_lost") <= n(&w[0], "pages_requested"));
+    }
+    assert!(frames.iter().all(|f| n(f, "splits") == 0 && n(f, "collapses") == 0));
+    assert!(frames.iter().skip(1).any(|f| n(f, "pages_gained") + n(f, "pages_lost") > 0), "a flyover changes pages");
     let s = &v["summary"];
+    for key in ["pages_gained", "pages_lost"] {
+        assert!(s[key]["mean"].is_number() && s[key]["total"].is_number(), "summary key {key}: {s}");
+    }
+    assert!(s["pages_gained"]["total"].as_f64().unwrap() >= s["pages_lost"]["total"].as_f64().unwrap());
     for key in ["pages_requested", "seek_pages", "update_ms", "frame_ms", "triangles"] {
         assert!(s[key]["mean"].as_f64().is_some_and(|x| x > 0.0), "summary key {key}: {s}");
     }
@@ -271,6 +288,7 @@ fn pages_build_and_fly_commands() {
         .unwrap();
     let line = String::from_utf8_lossy(&text.stdout);
     assert!(line.contains(" pages gained + lost per frame") && !line.contains("splits"), "{line}");
+    assert!(line.contains(" gained, ") && line.contains(" lost, means)") && !line.contains("misses"), "{line}");
     assert_eq!(std::fs::read_dir(d("frames")).unwrap().count(), 12);
     // The first frame shows the bunny: not only sky.
     let first = image::open(d("frames").join("frame_00000.png")).unwrap().to_rgba8();

@@ -61,6 +61,11 @@ fn build_lib(name: &str, memory_bytes: u64, metric: VdtMetric) -> Built {
 
 /// Through the binary, so the memory figures are those of a process doing nothing else.
 fn build_cli(name: &str, memory: &str, metric: &str) -> Built {
+    build_cli_with(name, memory, metric, &[])
+}
+
+/// [`build_cli`] with more arguments (`--batched`).
+fn build_cli_with(name: &str, memory: &str, metric: &str, more: &[&str]) -> Built {
     let dir = scratch();
     let path = dir.path().join("out.vdt");
     // OUTPUT is the meta-node file; --vdt keeps the forest this test reads.
@@ -71,6 +76,7 @@ fn build_cli(name: &str, memory: &str, metric: &str) -> Built {
         .arg("--vdt")
         .arg(&path)
         .args(["--memory", memory, "--metric", metric, "--json"])
+        .args(more)
         .output()
         .expect("run relief");
     assert!(out.status.success(), "relief mesh build failed: {}", String::from_utf8_lossy(&out.stderr));
@@ -391,6 +397,32 @@ fn batched_build_is_the_unlimited_build_and_keeps_the_global_order() {
     }
     let (a, b) = (std::fs::read(&small.path).unwrap(), std::fs::read(&full.path).unwrap());
     assert!(a == b, "the batched and unlimited builds differ");
+}
+
+/// Issue 23: three budgets, three code paths, the same bytes. The whole mesh in memory (no
+/// B-tree: one batch, no redb cache, the accounted peak the in-memory estimate), the B-tree path
+/// in one batch (`--batched`), and an eighth of the mesh's size in many batches: the VDT forest
+/// and the meta-node file are byte-identical.
+#[test]
+fn three_budgets_build_the_same_bytes_in_memory_batched_and_in_an_eighth() {
+    let in_memory = build_cli("armadillo.off", "4G", "length");
+    let one_batch = build_cli_with("armadillo.off", "4G", "length", &["--batched"]);
+    let eighth = build_cli("armadillo.off", "1/8", "length");
+    let r = &in_memory.report;
+    assert!(r.batches == 1 && r.redb_cache_bytes == 0 && r.peak_accounted_bytes > 0, "{r:?}");
+    assert!(r.peak_accounted_bytes < r.memory_budget_bytes, "{r:?}");
+    let r = &one_batch.report;
+    assert!(r.batches == 1 && r.redb_cache_bytes > 0, "{r:?}");
+    let r = &eighth.report;
+    assert!(r.batches >= 3 && r.peak_accounted_bytes <= r.memory_budget_bytes, "{r:?}");
+    assert!(r.memory_budget_bytes <= in_memory.report.mesh_bytes / 8 + 1, "{r:?}");
+    let bytes = |b: &Built, ext: &str| std::fs::read(b.path.with_extension(ext)).unwrap();
+    for ext in ["vdt", "rmn"] {
+        let a = bytes(&in_memory, ext);
+        assert!(a.len() > 1000, "{ext}: {} bytes", a.len());
+        assert!(a == bytes(&one_batch, ext), "{ext}: the in-memory and the one-batch B-tree builds differ");
+        assert!(a == bytes(&eighth, ext), "{ext}: the in-memory build and the build in 1/8 differ");
+    }
 }
 
 #[test]

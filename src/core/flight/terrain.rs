@@ -133,8 +133,8 @@ pub fn refine_once(engine: &mut Engine, terrain: &TerrainFile, job: RefineJob, m
         None => {
             let mut result = engine.refiner.refine_file(terrain, &job.camera, &job.options, &mut strip);
             if job.options.heights && job.options.morph_ratio.is_none() {
-                result = result
-                    .and_then(|()| crate::heightcache::exact_heights(terrain, &strip.vertices, &mut strip.morph));
+                result =
+                    result.and_then(|()| crate::heightcache::exact_heights(terrain, &strip.vertices, &mut strip.morph));
             }
             result
         }

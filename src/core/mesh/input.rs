@@ -90,14 +90,19 @@ impl Input {
             return Ok(None);
         }
         let gzip = magic[..got] == [0x1f, 0x8b];
-        let (source, buf, size_hint) = if gzip {
+        let (source, buf, size_hint, chunk) = if gzip {
             let hint = gzip_size_hint(&file, len);
             let prefix = io::Cursor::new(magic);
-            (Source::Gzip(Gzip::spawn(prefix.chain(file), chunk)), Vec::new(), hint)
+            (Source::Gzip(Gzip::spawn(prefix.chain(file), chunk)), Vec::new(), hint, chunk)
         } else {
+            // A small file is read in one chunk of its own size, not a whole [`CHUNK`].
+            let chunk = match usize::try_from(len) {
+                Ok(len) if len > 0 => chunk.min(len.max(4096)),
+                _ => chunk,
+            };
             let mut buf = Vec::with_capacity(chunk + 64);
             buf.extend_from_slice(&magic[..got]);
-            (Source::Plain(file), buf, usize::try_from(len).unwrap_or(usize::MAX))
+            (Source::Plain(file), buf, usize::try_from(len).unwrap_or(usize::MAX), chunk)
         };
         Ok(Some(Input {
             buf,

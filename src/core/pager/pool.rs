@@ -846,8 +846,7 @@ impl<L: BlockLoader> BufferPool<L> {
         let mut b = lock(&self.shared.board);
         let mut drained = true;
         while (!b.queue.is_empty() || b.busy > 0) && !b.stopped {
-            let Some(left) = deadline.checked_duration_since(std::time::Instant::now()).filter(|d| !d.is_zero())
-            else {
+            let Some(left) = deadline.checked_duration_since(std::time::Instant::now()).filter(|d| !d.is_zero()) else {
                 drained = false;
                 break;
             };

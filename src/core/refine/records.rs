@@ -60,11 +60,10 @@ impl RecordSource for [Record] {
     }
 }
 
-/// A record slice whose 16-byte lane reads clamp the index instead of branching on it: the walk
-/// reads two records a node, and a clamp (compare and conditional move against a bound computed
-/// once) costs less than the slice's bounds check. Indices from the walk are always in range (a
-/// layout maps every grid vertex below its length), so the clamp only keeps a wrong index inside
-/// the slice; it never changes a correct read.
+/// A record slice whose 16-byte lane reads test the index against a bound computed once
+/// (`len − 2`) rather than `len − 1` each read: the walk reads two records a node. The last
+/// record's 16 bytes would run 4 bytes past the slice, so it alone is read as a `Record` (a
+/// branch the walk almost never takes).
 #[derive(Clone, Copy)]
 pub struct RecordSlice<'a> {
     records: &'a [Record],
@@ -91,11 +90,14 @@ impl RecordSource for RecordSlice<'_> {
 
     #[inline(always)]
     fn record4(&self, index: u64) -> [f32; 4] {
-        debug_assert!((index as usize) < self.records.len());
-        let i = (index as usize).min(self.last);
-        // SAFETY: `i ≤ len − 2`, so the 16 bytes from record `i` (12 of it, 4 of the next) are in
-        // the slice; `[f32; 4]` is read unaligned.
-        unsafe { self.records.as_ptr().add(i).cast::<[f32; 4]>().read_unaligned() }
+        let i = index as usize;
+        if i <= self.last {
+            // SAFETY: `i ≤ len − 2`, so the 16 bytes from record `i` (12 of it, 4 of the next)
+            // are in the slice; `[f32; 4]` is read unaligned.
+            unsafe { self.records.as_ptr().add(i).cast::<[f32; 4]>().read_unaligned() }
+        } else {
+            lanes_of(self.records[i])
+        }
     }
 
     #[inline(always)]
@@ -183,5 +185,25 @@ impl RecordSource for PagerRecords<'_> {
                 UNREADABLE
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every index reads its own record's lanes, the last one included (its 16 bytes would run
+    /// past the slice).
+    #[test]
+    fn record_slice_reads_every_record_as_the_plain_slice_does() {
+        let records: Vec<Record> =
+            (0..5).map(|k| Record { z: k as f32, error: 10.0 + k as f32, radius: 20.0 + k as f32 }).collect();
+        let slice = RecordSlice::new(&records).unwrap();
+        for i in 0..records.len() as u64 {
+            let (a, b) = (slice.record4(i), records[..].record4(i));
+            assert_eq!(&a[..3], &lanes_of(records[i as usize])[..3], "record {i}");
+            assert_eq!(&a[..3], &b[..3], "record {i}");
+        }
+        assert!(RecordSlice::new(&records[..1]).is_none());
     }
 }
