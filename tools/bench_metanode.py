@@ -50,7 +50,7 @@ def run(binary, mesh, budget, out_dir, tag, extra, limit_s):
         if line.startswith("MAXRSS "):
             rss_kb = int(line.split()[1])
     r = json.loads(p.stdout)
-    v, m = r["vdt"], r["metanode"]
+    v, m = r.get("vdt", r), r["metanode"]  # the VDT report is flattened into the top level
     digest = hashlib.sha256()
     for p_out in (rmn, vdt):
         with open(p_out, "rb") as f:
