@@ -2,7 +2,7 @@
 """Two threads against one by mesh size (BENCHMARKS.md, issue 43).
 
     python3 tools/bench_refine_threads.py [--relief target/release/relief] [--views 12]
-        [--taus 0.25,1,4,16] [--repeat 15] [--threads 2] [--json OUT] FILE.relief...
+        [--taus 0.25,1,4,16] [--repeat 51] [--threads 2] [--json OUT] FILE.relief...
 
 For every file, view (tools/bench_refine.py's low oblique views), τ and culling mode (on and
 off), it runs `relief refine --threads 1` and `--threads N` in turn (so both see the same machine)
@@ -27,7 +27,7 @@ def main():
     ap.add_argument("--relief", default="target/release/relief")
     ap.add_argument("--views", type=int, default=12)
     ap.add_argument("--taus", default="0.25,1,4,16")
-    ap.add_argument("--repeat", type=int, default=15)
+    ap.add_argument("--repeat", type=int, default=51)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json")
     a = ap.parse_args()

@@ -811,8 +811,9 @@ impl Refiner {
                 self.items.push(Item::Append(sv(v), 1, m));
             }
         }
-        // Many more tasks than threads, so that work stealing evens out the view-dependent cost.
-        let target = 64 * self.threads;
+        // More tasks than threads, so that work stealing evens out the view-dependent cost; 16 a
+        // thread measured faster than 64 at 10³–10⁵ triangles (fewer probes and seams, BENCHMARKS.md).
+        let target = 16 * self.threads;
         while self.tasks.len() < target {
             let mut expanded = false;
             self.next_items.clear();
