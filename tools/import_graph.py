@@ -2,7 +2,8 @@
 """In-crate import graph of relief's two crates, and its circles.
 
     python3 tools/import_graph.py [--crate core|app|both] [--level module|file]
-                                  [--order m1,m2,...] [--tests] [--no-follow] [--json] [--check]
+                                  [--order m1,m2,...] [--tests] [--no-follow] [--facade-edges]
+                                  [--edges] [--json] [--check]
 
 Standard library only; reads the sources, never builds them.
 
@@ -27,15 +28,21 @@ too, since `super::Name` can name them) and `pub use` / glob re-exports (`--no-f
 the module the path names). A `pub use` line is itself a reference from the re-exporting file.
 
 Granularity: `--level module` groups files by top-level module of their crate (`error`,
-`format`, `refine`, ...; the crate root is `<root>`); `--level file` is one node per file.
+`format`, `refine`, ...; the crate root is `<root>`, the binary's modules are `bin:cli`,
+`bin:<main>`); `--level file` is one node per file. At file level a module's own file naming
+its submodules (a mod.rs re-exporting or dispatching to its children) is the facade direction
+and is left out (counted); `--facade-edges` keeps it, which makes every mod.rs whose children
+use `super::` items a circle of its own.
 
 Report: strongly connected components with more than one node (Tarjan), and for each a set of
 edges that closes its cycles: the edges going upward against an order of the component's
 nodes (`--order` lowest layer first, nodes not listed placed by a greedy feedback-arc heuristic
 weighted by reference counts), pruned to an inclusion-minimal set (an upward edge that closes
 no cycle once the others are cut is put back). Each closing edge lists its files, lines and
-referenced items. `--check` prints the circles and exits 1 if there are any, else prints
-"no import circles" and exits 0.
+referenced items. With `--order`, every edge of the whole graph that points upward against
+it is listed too (the layering rule: only downward arrows). `--check` prints the report and
+exits 1 if there is a circle (or, with `--order`, an upward edge), else prints
+"no import circles" and exits 0. `--edges` lists every edge with its reference count.
 """
 
 import argparse
@@ -784,14 +791,22 @@ def main(argv=None):
             "closing_edges": [{"from": u, "to": v, "references": weight(edges[(u, v)]),
                                "refs": edges[(u, v)]} for (u, v) in cut],
         })
+    if hint:
+        pos = {v: i for i, v in enumerate(hint)}
+        result["unlisted_nodes"] = sorted(v for v in nodes if v not in pos)
+        result["against_order"] = [
+            {"from": u, "to": v, "references": weight(r), "refs": r}
+            for (u, v), r in sorted(edges.items(), key=lambda kv: (weight(kv[1]), kv[0]))
+            if u in pos and v in pos and pos[v] > pos[u]]
     if a.edges:
         result["all_edges"] = [{"from": u, "to": v, "references": weight(r)}
                                for (u, v), r in sorted(edges.items())]
     if a.json:
         print(json.dumps(result, indent=1))
-        return 1 if (a.check and sccs) else 0
-    if a.check and not sccs:
-        print("no import circles")
+        return 1 if (a.check and (sccs or (hint and result["against_order"]))) else 0
+    upward = bool(hint) and bool(result["against_order"])
+    if a.check and not sccs and not upward:
+        print("no import circles" + (" and no edge against --order" if hint else ""))
         return 0
     print(f"{a.crate} crate(s), {a.level} level: {len(nodes)} nodes, {len(edges)} edges, "
           f"{result['references']} references ({skipped} in #[cfg(test)] code skipped"
@@ -813,11 +828,20 @@ def main(argv=None):
             for f, items in sorted(group_items(e["refs"]).items()):
                 for it, lines in sorted(items.items()):
                     print(f"      {f}:{','.join(map(str, sorted(lines)))}  {it}")
+    if hint:
+        ups = result["against_order"]
+        print(f"\n--order: {len(ups)} edge(s) point upward against it"
+              + (f"; not placed: {', '.join(result['unlisted_nodes'])}" if result["unlisted_nodes"] else ""))
+        for e in ups:
+            print(f"    {e['from']} -> {e['to']}  ({e['references']} reference(s))")
+            for f, items in sorted(group_items(e["refs"]).items()):
+                for it, lines in sorted(items.items()):
+                    print(f"      {f}:{','.join(map(str, sorted(lines)))}  {it}")
     if a.edges:
         print("\nedges:")
         for e in result["all_edges"]:
             print(f"  {e['from']} -> {e['to']}  {e['references']}")
-    return 1 if (a.check and sccs) else 0
+    return 1 if (a.check and (sccs or upward)) else 0
 
 
 if __name__ == "__main__":
