@@ -20,8 +20,8 @@ use std::collections::BinaryHeap;
 use rayon::prelude::*;
 
 use super::simplify::{
-    add_quadrics, edge_key, f32_up, key_ends, length, plane_quadric, quadric_error, triangle_survives, EdgeKey, Quadric,
-    RegionStats,
+    add_quadrics, edge_key, f32_up, key_ends, length, plane_quadric, quadric_error, triangle_survives, EdgeKey,
+    Quadric, RegionStats,
 };
 use super::{VdtNode, VdtTriangle, NONE};
 use crate::error::{Error, Result};
@@ -56,8 +56,8 @@ pub fn needed_bytes(vertices: u64, triangles: u64, metric: VdtMetric) -> u64 {
         + 12 // current corners
         + 3 * 4 * 2 // list entries, with the lists' slack
         + 12; // the output record
-    // Rejected edges: a map entry and list per rejected end (a few % of edges at most; all of
-    // them counted).
+              // Rejected edges: a map entry and list per rejected end (a few % of edges at most; all of
+              // them counted).
     n * per_vertex + t * per_triangle + edges * 2 * 16 + edges * 16
 }
 
@@ -764,7 +764,8 @@ mod tests {
             state
         };
         let dead = |k: EdgeKey| k % 7 == 3;
-        let mut initial: Vec<EdgeKey> = (0..3 * WINDOW as u64).map(|_| (rand() % 1_000_000) as EdgeKey * 1000).collect();
+        let mut initial: Vec<EdgeKey> =
+            (0..3 * WINDOW as u64).map(|_| (rand() % 1_000_000) as EdgeKey * 1000).collect();
         initial.sort_unstable();
         initial.dedup();
         let mut reference: BinaryHeap<Reverse<EdgeKey>> = initial.iter().map(|&k| Reverse(k)).collect();

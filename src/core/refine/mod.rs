@@ -830,7 +830,15 @@ impl Refiner {
                     continue;
                 }
                 expanded = true;
-                let split = probe_vertex::<R, M, S, C>(records, view, t.split, t.level - 1, t.mask, &S::new(&t.m), &mut counters);
+                let split = probe_vertex::<R, M, S, C>(
+                    records,
+                    view,
+                    t.split,
+                    t.level - 1,
+                    t.mask,
+                    &S::new(&t.m),
+                    &mut counters,
+                );
                 match split {
                     None => self.next_items.push(Item::Append(sv(t.apex), (t.level & 1) as u8, t.m.apex())),
                     Some((mask, p)) => {
