@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+use serde::Serialize;
+
 /// Everything that can go wrong in relief's library code.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
@@ -26,7 +28,7 @@ pub enum Error {
     /// A relief file (terrain, VDT, meta-node or page file) that is not one, is of another version,
     /// is truncated, fails a checksum or holds inconsistent data (`format`).
     #[error("{}: {}", path.display(), problem.describe(*kind))]
-    File { path: PathBuf, kind: crate::format::FileKind, problem: crate::format::Problem },
+    File { path: PathBuf, kind: FileKind, problem: Problem },
     /// A read past the end of a file (it is shorter than what was asked of it).
     #[error("{}: truncated: expected {expected} bytes, found {found}", path.display())]
     Truncated { path: PathBuf, expected: u64, found: u64 },
@@ -119,5 +121,94 @@ pub trait IoContext<T> {
 impl<T> IoContext<T> for std::io::Result<T> {
     fn at(self, path: &std::path::Path) -> Result<T> {
         self.map_err(|e| Error::io(path, e))
+    }
+}
+
+/// The kinds of relief file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FileKind {
+    Terrain,
+    Vdt,
+    MetaNode,
+    Pages,
+    Imagery,
+}
+
+impl FileKind {
+    pub const ALL: [FileKind; 5] =
+        [FileKind::Terrain, FileKind::Vdt, FileKind::MetaNode, FileKind::Pages, FileKind::Imagery];
+
+    /// What messages call it.
+    pub fn name(self) -> &'static str {
+        match self {
+            FileKind::Terrain => "terrain file",
+            FileKind::Vdt => "VDT file",
+            FileKind::MetaNode => "meta-node file",
+            FileKind::Pages => "page file",
+            FileKind::Imagery => "imagery tile file",
+        }
+    }
+
+    /// Its first 8 bytes.
+    pub fn magic(self) -> [u8; 8] {
+        match self {
+            FileKind::Terrain => *b"\x89RELIEF\n",
+            FileKind::Vdt => *b"\x89RLFVDT\n",
+            FileKind::MetaNode => *b"\x89RLFMNT\n",
+            FileKind::Pages => *b"\x89RLFPGS\n",
+            FileKind::Imagery => *b"\x89RLFIMG\n",
+        }
+    }
+
+    /// The kind whose magic `bytes` start with.
+    pub fn of_magic(bytes: &[u8]) -> Option<FileKind> {
+        FileKind::ALL.into_iter().find(|k| bytes.len() >= 8 && bytes[..8] == k.magic())
+    }
+}
+
+impl std::fmt::Display for FileKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// What is wrong with a relief file (see [`Error::File`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Problem {
+    /// The first 8 bytes are not the format's magic.
+    BadMagic,
+    /// A version this build does not read (it reads `oldest` to `supported`).
+    Version { found: u32, oldest: u32, supported: u32 },
+    /// The file is shorter (or longer) than its header says it must be.
+    Truncated { expected: u64, found: u64 },
+    /// A stored checksum disagrees with the bytes.
+    Checksum { which: &'static str, stored: u64, computed: u64 },
+    /// A field, a table entry or a block that is inconsistent.
+    Corrupt(String),
+}
+
+impl Problem {
+    /// The problem as said of a file of kind `kind`.
+    pub fn describe(&self, kind: FileKind) -> String {
+        match self {
+            Problem::BadMagic => format!("not a relief {kind} (bad magic)"),
+            Problem::Version { found, oldest, supported } if oldest < supported => {
+                format!("{kind} version {found} is not supported (this build reads versions {oldest} to {supported})")
+            }
+            Problem::Version { found, supported, .. } => {
+                format!("{kind} version {found} is not supported (this build reads version {supported})")
+            }
+            Problem::Truncated { expected, found } if found < expected => {
+                format!("truncated {kind}: expected {expected} bytes, found {found}")
+            }
+            Problem::Truncated { expected, found } => {
+                format!("{kind} has {} bytes past its end (expected {expected} bytes, found {found})", found - expected)
+            }
+            Problem::Checksum { which, stored, computed } => {
+                format!("{kind}: {which} checksum mismatch (stored {stored:016x}, computed {computed:016x})")
+            }
+            Problem::Corrupt(what) => format!("corrupt {kind}: {what}"),
+        }
     }
 }

@@ -40,10 +40,9 @@ use crate::format::terrain::TerrainFile;
 use crate::layout::{Layout, LayoutVisitor};
 use crate::refine::{Morph, PagerRecords, RecordSource, StripVertex};
 
-/// Levels the shaders address at most (the table header has room for this many).
-pub const MAX_LEVELS: u32 = 16;
-/// `u32`s before the table's entries: per level its first entry, then its tiles per side.
-pub const TABLE_HEADER: u32 = 2 * MAX_LEVELS;
+// The tile table's layout, which the imagery tile file shares.
+pub use crate::format::imagery::{MAX_LEVELS, TABLE_HEADER};
+
 /// Tile cells per side unless asked otherwise.
 pub const DEFAULT_TILE_CELLS: u32 = 256;
 /// Frames a new tile takes to blend in over the coarser one below it.

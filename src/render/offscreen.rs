@@ -4,7 +4,10 @@
 
 use crate::error::{Error, Result};
 use crate::render::gpu::Gpu;
-use crate::render::terrain::{DEPTH_FORMAT, PROBE_FORMAT};
+use crate::render::pipeline::DEPTH_FORMAT;
+
+/// Format of the two probe targets, see `fs_probe` and [`Probe`](crate::render::terrain::Probe).
+pub const PROBE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 
 /// Colour format of offscreen images: 8-bit sRGB, what PNG stores.
 pub const OFFSCREEN_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;

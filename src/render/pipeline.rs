@@ -1,7 +1,9 @@
 //! Render pipelines as the renderers build them: one shader module and layout, no multisampling,
 //! both faces drawn (terrain is seen from below under cliffs, scanned meshes through their holes).
 
-use crate::render::terrain::DEPTH_FORMAT;
+/// Depth buffer format: reversed z (1 at the near plane, 0 at infinity) in f32, for precision
+/// from a metre to the horizon.
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 
 /// What differs between the pipelines of a renderer.
 pub(crate) struct PipelineSpec<'a> {

@@ -25,15 +25,11 @@ use crate::render::shade::{Look, ShadeParams};
 use crate::render::vertex_buffer::VertexBuffer;
 use crate::sys::progress::Progress;
 
+pub use crate::render::offscreen::PROBE_FORMAT;
+pub use crate::render::pipeline::DEPTH_FORMAT;
+
 /// WGSL source of the terrain shaders.
 pub const TERRAIN_WGSL: &str = include_str!("../../shaders/terrain.wgsl");
-
-/// Depth buffer format: reversed z (1 at the near plane, 0 at infinity) in f32, for precision
-/// from a metre to the horizon.
-pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-
-/// Format of the two probe targets, see `fs_probe` and [`Probe`].
-pub const PROBE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 
 /// Bytes uploaded per strip vertex without and with geomorphing.
 pub const VERTEX_BYTES: u64 = std::mem::size_of::<StripVertex>() as u64;

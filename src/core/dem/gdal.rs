@@ -13,8 +13,10 @@ use std::path::{Path, PathBuf};
 use gdal::raster::{GdalDataType, GdalType, RasterBand};
 use gdal::{Dataset, Metadata};
 
-use super::geotiff::{f32_sample, f64_sample, int_sample, one_line};
-use super::{check_dimensions, DemFormat, DemInfo, DemSource, Run, RunBuffer, SourceSpacing};
+use super::{
+    check_dimensions, f32_sample, f64_sample, int_sample, one_line, DemFormat, DemInfo, DemSource, Run, RunBuffer,
+    SourceSpacing,
+};
 use crate::error::{Error, Result};
 use crate::georef::{unit, CrsKind, Georef};
 
@@ -118,10 +120,7 @@ fn source_files(dataset: &Dataset) -> Vec<PathBuf> {
 /// is left to the read to report.
 fn lossy_source(source: &Path) -> Option<String> {
     if matches!(super::detect(source), Ok(DemFormat::GeoTiff)) {
-        return match super::geotiff::open(source, false) {
-            Err(Error::Lossy { what, .. }) => Some(what),
-            _ => None,
-        };
+        return super::tiff_lossy(source);
     }
     open_dataset(source).ok().and_then(|d| lossy_compression(&d))
 }

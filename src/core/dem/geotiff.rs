@@ -18,7 +18,10 @@ use tiff::decoder::{ChunkType, Decoder, DecodingResult};
 use tiff::tags::Tag;
 use tiff::{ColorType, TiffError};
 
-use super::{check_dimensions, DemFormat, DemInfo, DemSource, Run, RunBuffer, SourceSpacing};
+use super::{
+    check_dimensions, f32_sample, f64_sample, int_sample, one_line, DemFormat, DemInfo, DemSource, Run, RunBuffer,
+    SourceSpacing,
+};
 use crate::error::{Error, IoContext, Result};
 use crate::georef::{unit, CrsKind, Georef};
 
@@ -62,11 +65,6 @@ fn tiff_error(path: &Path, e: TiffError) -> Error {
         }
         e => Error::bad_dem(path, format!("invalid TIFF: {}", one_line(&e.to_string()))),
     }
-}
-
-/// Error texts from dependencies may span lines; ours must not.
-pub(super) fn one_line(s: &str) -> String {
-    s.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
 pub(super) fn open(path: &Path, allow_lossy: bool) -> Result<Box<dyn DemSource>> {
@@ -156,7 +154,7 @@ pub(super) fn open(path: &Path, allow_lossy: bool) -> Result<Box<dyn DemSource>>
     // Pixels GDAL decodes, under the header read here (so copies give the same terrain file).
     #[cfg(feature = "gdal")]
     if !native {
-        return super::gdal::with_info(path, info);
+        return super::gdal_pixels(path, info);
     }
     Ok(Box::new(GeoTiff { path: path.to_path_buf(), decoder, info }))
 }
@@ -324,36 +322,6 @@ impl DemSource for GeoTiff {
             }
         }
         Ok(())
-    }
-}
-
-/// An integer sample (as f64; exact up to 32 bits, rounded for 64-bit values) with nodata → NaN.
-pub(super) fn int_sample(v: f64, nodata: Option<f64>) -> f64 {
-    if Some(v) == nodata {
-        f64::NAN
-    } else {
-        v
-    }
-}
-
-/// An f64 sample with nodata and non-finite values → NaN.
-pub(super) fn f64_sample(v: f64, nodata: Option<f64>) -> f64 {
-    if Some(v) == nodata || !v.is_finite() {
-        f64::NAN
-    } else {
-        v
-    }
-}
-
-/// A float sample compared with nodata in f32, so that e.g. `-3.4028234663852886e+38` matches.
-/// Huge sentinels (|nodata| ≥ 1e38) also match within a relative 1e-5, since some writers print
-/// them with few digits (`-3.40282e+38` for `f32::MIN`).
-pub(super) fn f32_sample(v: f32, nodata: Option<f32>) -> f64 {
-    let is_nodata = nodata.is_some_and(|nd| v == nd || (nd.abs() >= 1e38 && (v - nd).abs() <= nd.abs() * 1e-5));
-    if is_nodata || !v.is_finite() {
-        f64::NAN
-    } else {
-        f64::from(v)
     }
 }
 

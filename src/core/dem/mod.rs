@@ -202,6 +202,23 @@ fn needs_gdal(path: &Path, what: &str) -> Error {
     }
 }
 
+/// Pixels of a GeoTIFF whose header the native reader read, decoded by GDAL (a compression the
+/// `tiff` crate does not decode); here, so that neither reader names the other.
+#[cfg(feature = "gdal")]
+fn gdal_pixels(path: &Path, info: DemInfo) -> Result<Box<dyn DemSource>> {
+    gdal::with_info(path, info)
+}
+
+/// Why the GeoTIFF at `path` is lossy by the native reader's check, if it is (`None` also when it
+/// does not open: the read reports that).
+#[cfg(feature = "gdal")]
+fn tiff_lossy(path: &Path) -> Option<String> {
+    match geotiff::open(path, false) {
+        Err(Error::Lossy { what, .. }) => Some(what),
+        _ => None,
+    }
+}
+
 /// Extensions of the files a directory given as a mosaic contributes (any case).
 const TILE_EXTENSIONS: [&str; 7] = ["tif", "tiff", "hgt", "asc", "png", "exr", "vrt"];
 
@@ -321,6 +338,41 @@ fn check_dimensions(path: &Path, width: u64, height: u64) -> Result<(u32, u32)> 
     match (w, h, width.checked_mul(height)) {
         (Ok(w), Ok(h), Some(n)) if n <= MAX_SAMPLES => Ok((w, h)),
         _ => Err(Error::bad_dem(path, format!("absurd dimensions {width} x {height} (more than 2^40 samples)"))),
+    }
+}
+
+/// Error texts from dependencies may span lines; ours must not.
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// An integer sample (as f64; exact up to 32 bits, rounded for 64-bit values) with nodata → NaN.
+fn int_sample(v: f64, nodata: Option<f64>) -> f64 {
+    if Some(v) == nodata {
+        f64::NAN
+    } else {
+        v
+    }
+}
+
+/// An f64 sample with nodata and non-finite values → NaN.
+fn f64_sample(v: f64, nodata: Option<f64>) -> f64 {
+    if Some(v) == nodata || !v.is_finite() {
+        f64::NAN
+    } else {
+        v
+    }
+}
+
+/// A float sample compared with nodata in f32, so that e.g. `-3.4028234663852886e+38` matches.
+/// Huge sentinels (|nodata| ≥ 1e38) also match within a relative 1e-5, since some writers print
+/// them with few digits (`-3.40282e+38` for `f32::MIN`).
+fn f32_sample(v: f32, nodata: Option<f32>) -> f64 {
+    let is_nodata = nodata.is_some_and(|nd| v == nd || (nd.abs() >= 1e38 && (v - nd).abs() <= nd.abs() * 1e-5));
+    if is_nodata || !v.is_finite() {
+        f64::NAN
+    } else {
+        f64::from(v)
     }
 }
 

@@ -51,6 +51,10 @@ pub const PAYLOAD_OFFSET: u64 = 4096;
 pub const DEFAULT_TILE_TEXELS: u32 = 254;
 /// The largest image side (2^20 texels: 16 levels of 254-texel tiles at most).
 pub const MAX_SIDE: u32 = 1 << 20;
+/// Levels the shaders address at most (the table header has room for this many).
+pub const MAX_LEVELS: u32 = 16;
+/// `u32`s before the table's entries: per level its first entry, then its tiles per side.
+pub const TABLE_HEADER: u32 = 2 * MAX_LEVELS;
 const FLAG_PLACED: u32 = 1;
 const FLAG_WRAPS: u32 = 2;
 
@@ -93,8 +97,8 @@ impl ImageGrid {
             }
             k += 1;
         }
-        if levels.len() > crate::heightcache::MAX_LEVELS as usize {
-            return Err(format!("{} levels (at most {})", levels.len(), crate::heightcache::MAX_LEVELS));
+        if levels.len() > MAX_LEVELS as usize {
+            return Err(format!("{} levels (at most {})", levels.len(), MAX_LEVELS));
         }
         Ok(ImageGrid { width, height, tile, levels })
     }
@@ -141,11 +145,11 @@ impl ImageGrid {
     }
 
     /// The table header the shaders read: per level its first key, then tiles per row.
-    pub fn header(&self) -> [u32; crate::heightcache::TABLE_HEADER as usize] {
-        let mut h = [0u32; crate::heightcache::TABLE_HEADER as usize];
+    pub fn header(&self) -> [u32; TABLE_HEADER as usize] {
+        let mut h = [0u32; TABLE_HEADER as usize];
         for (k, l) in self.levels.iter().enumerate() {
             h[k] = l.first;
-            h[crate::heightcache::MAX_LEVELS as usize + k] = l.tiles_x;
+            h[MAX_LEVELS as usize + k] = l.tiles_x;
         }
         h
     }

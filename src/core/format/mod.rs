@@ -24,7 +24,7 @@
 
 use std::path::Path;
 
-use serde::Serialize;
+pub use crate::error::{FileKind, Problem};
 
 use crate::error::{Error, Result};
 use crate::pager::source::Source;
@@ -40,43 +40,9 @@ pub const HEADER_BYTES: usize = 256;
 /// Where the header checksum sits (it covers the bytes before it).
 const CHECKSUM_AT: usize = 248;
 
-/// The kinds of relief file.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum FileKind {
-    Terrain,
-    Vdt,
-    MetaNode,
-    Pages,
-    Imagery,
-}
-
+// `FileKind` and `Problem` live in `error` (so `Error::File` needs nothing above it); the
+// versions stay here, next to the formats that define them.
 impl FileKind {
-    pub const ALL: [FileKind; 5] =
-        [FileKind::Terrain, FileKind::Vdt, FileKind::MetaNode, FileKind::Pages, FileKind::Imagery];
-
-    /// What messages call it.
-    pub fn name(self) -> &'static str {
-        match self {
-            FileKind::Terrain => "terrain file",
-            FileKind::Vdt => "VDT file",
-            FileKind::MetaNode => "meta-node file",
-            FileKind::Pages => "page file",
-            FileKind::Imagery => "imagery tile file",
-        }
-    }
-
-    /// Its first 8 bytes.
-    pub fn magic(self) -> [u8; 8] {
-        match self {
-            FileKind::Terrain => *b"\x89RELIEF\n",
-            FileKind::Vdt => *b"\x89RLFVDT\n",
-            FileKind::MetaNode => *b"\x89RLFMNT\n",
-            FileKind::Pages => *b"\x89RLFPGS\n",
-            FileKind::Imagery => *b"\x89RLFIMG\n",
-        }
-    }
-
     /// The version this build writes and reads.
     pub fn version(self) -> u32 {
         match self {
@@ -100,57 +66,37 @@ impl FileKind {
     pub fn reads_version(self, version: u32) -> bool {
         (self.oldest_version()..=self.version()).contains(&version)
     }
+}
 
-    /// The kind whose magic `bytes` start with.
-    pub fn of_magic(bytes: &[u8]) -> Option<FileKind> {
-        FileKind::ALL.into_iter().find(|k| bytes.len() >= 8 && bytes[..8] == k.magic())
+// The box the VDT, meta-node and page file headers store (re-exported as `mesh::Bounds`).
+/// Axis-aligned bounding box.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Bounds {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+impl Bounds {
+    /// Centre of the box.
+    pub fn centre(&self) -> glam::DVec3 {
+        (glam::DVec3::from(self.min) + glam::DVec3::from(self.max)) / 2.0
     }
-}
 
-impl std::fmt::Display for FileKind {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
+    /// Side lengths along x, y, z.
+    pub fn extent(&self) -> [f64; 3] {
+        [0, 1, 2].map(|k| self.max[k] - self.min[k])
     }
-}
 
-/// What is wrong with a relief file (see [`Error::File`]).
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum Problem {
-    /// The first 8 bytes are not the format's magic.
-    BadMagic,
-    /// A version this build does not read.
-    Version { found: u32, supported: u32 },
-    /// The file is shorter (or longer) than its header says it must be.
-    Truncated { expected: u64, found: u64 },
-    /// A stored checksum disagrees with the bytes.
-    Checksum { which: &'static str, stored: u64, computed: u64 },
-    /// A field, a table entry or a block that is inconsistent.
-    Corrupt(String),
-}
+    /// Length of the diagonal.
+    pub fn diagonal(&self) -> f64 {
+        glam::DVec3::from(self.extent()).length()
+    }
 
-impl Problem {
-    /// The problem as said of a file of kind `kind`.
-    pub fn describe(&self, kind: FileKind) -> String {
-        match self {
-            Problem::BadMagic => format!("not a relief {kind} (bad magic)"),
-            Problem::Version { found, supported } if kind.oldest_version() < *supported => {
-                let oldest = kind.oldest_version();
-                format!("{kind} version {found} is not supported (this build reads versions {oldest} to {supported})")
-            }
-            Problem::Version { found, supported } => {
-                format!("{kind} version {found} is not supported (this build reads version {supported})")
-            }
-            Problem::Truncated { expected, found } if found < expected => {
-                format!("truncated {kind}: expected {expected} bytes, found {found}")
-            }
-            Problem::Truncated { expected, found } => {
-                format!("{kind} has {} bytes past its end (expected {expected} bytes, found {found})", found - expected)
-            }
-            Problem::Checksum { which, stored, computed } => {
-                format!("{kind}: {which} checksum mismatch (stored {stored:016x}, computed {computed:016x})")
-            }
-            Problem::Corrupt(what) => format!("corrupt {kind}: {what}"),
-        }
+    /// Distance from `p` to the box (0 inside or on it).
+    pub fn distance_to(&self, p: glam::DVec3) -> f64 {
+        let lo = glam::DVec3::from(self.min) - p;
+        let hi = p - glam::DVec3::from(self.max);
+        lo.max(hi).max(glam::DVec3::ZERO).length()
     }
 }
 
@@ -221,7 +167,7 @@ impl HeaderBytes {
         }
         let version = self.u32(8);
         if !kind.reads_version(version) {
-            return Err(Problem::Version { found: version, supported: kind.version() });
+            return Err(Problem::Version { found: version, oldest: kind.oldest_version(), supported: kind.version() });
         }
         let (stored, computed) = (self.u64(CHECKSUM_AT), self.computed_checksum());
         if stored != computed {
@@ -268,7 +214,11 @@ pub fn decode_header<F: Format>(path: &Path, bytes: &[u8], file_len: u64) -> Res
     if bytes.len() >= 12 {
         let version = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
         if !F::KIND.reads_version(version) {
-            return Err(err(Problem::Version { found: version, supported: F::KIND.version() }));
+            return Err(err(Problem::Version {
+                found: version,
+                oldest: F::KIND.oldest_version(),
+                supported: F::KIND.version(),
+            }));
         }
     }
     if bytes.len() < HEADER_BYTES {

@@ -39,9 +39,8 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 
-use super::{corrupt, read_header, section_end, FileKind, Format, HeaderBytes, Problem};
+use super::{corrupt, read_header, section_end, Bounds, FileKind, Format, HeaderBytes, Problem};
 use crate::error::Result;
-use crate::mesh::Bounds;
 use crate::pager::{source, Access, Block, BlockBuf, FixedBlocks, Pager};
 
 pub const VERSION: u32 = 1;

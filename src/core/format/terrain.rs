@@ -831,7 +831,7 @@ mod tests {
         assert_eq!(problem(decode(&m, 0)), Problem::BadMagic);
         let mut m = b;
         m[8] = 9;
-        assert_eq!(problem(decode(&m, 0)), Problem::Version { found: 9, supported: VERSION });
+        assert_eq!(problem(decode(&m, 0)), Problem::Version { found: 9, oldest: OLDEST_VERSION, supported: VERSION });
         let mut m = b;
         m[100] ^= 1;
         assert!(matches!(problem(decode(&m, file_len(&h))), Problem::Checksum { which: "header", .. }));

@@ -39,6 +39,7 @@ use serde::Serialize;
 use crate::error::{Error, IoContext, Result};
 use input::{Input, StreamError};
 
+pub use crate::format::Bounds;
 pub use ply::{write_ply_binary, write_ply_bytes, PlyEncoding};
 pub use terrain::terrain_mesh;
 
@@ -48,37 +49,6 @@ pub struct Mesh {
     pub positions: Vec<[f64; 3]>,
     /// Counter-clockwise (as stored in the file), every index `< positions.len()`.
     pub triangles: Vec<[u32; 3]>,
-}
-
-/// Axis-aligned bounding box.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Bounds {
-    pub min: [f64; 3],
-    pub max: [f64; 3],
-}
-
-impl Bounds {
-    /// Centre of the box.
-    pub fn centre(&self) -> glam::DVec3 {
-        (glam::DVec3::from(self.min) + glam::DVec3::from(self.max)) / 2.0
-    }
-
-    /// Side lengths along x, y, z.
-    pub fn extent(&self) -> [f64; 3] {
-        [0, 1, 2].map(|k| self.max[k] - self.min[k])
-    }
-
-    /// Length of the diagonal.
-    pub fn diagonal(&self) -> f64 {
-        glam::DVec3::from(self.extent()).length()
-    }
-
-    /// Distance from `p` to the box (0 inside or on it).
-    pub fn distance_to(&self, p: glam::DVec3) -> f64 {
-        let lo = glam::DVec3::from(self.min) - p;
-        let hi = p - glam::DVec3::from(self.max);
-        lo.max(hi).max(glam::DVec3::ZERO).length()
-    }
 }
 
 impl Mesh {

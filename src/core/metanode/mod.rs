@@ -41,52 +41,15 @@
 //!              base triangles
 //! ```
 
-use bytemuck::{Pod, Zeroable};
-
 pub mod blocking;
 pub mod navigate;
 pub mod source;
-
-pub const NONE: u32 = u32::MAX;
-
-/// One node of the view-dependence forest (48 bytes).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
-pub struct VdtNode {
-    /// The node's position: `children[0]`'s (a leaf's), in the mesh's units.
-    pub position: [f32; 3],
-    /// Switch value: the collapse metric of the edge whose collapse created this node, nested
-    /// (≥ both children's); 0 for leaves. Length metric: metres (mesh units); quadric: the square
-    /// root of the quadric error, also in mesh units.
-    pub switch: f32,
-    /// Radius of a sphere around `position` holding every leaf of the subtree, nested
-    /// (≥ ‖p − c‖ + r_c for both children c); 0 for leaves.
-    pub radius: f32,
-    /// The two children (`children[0]` gives the position); [`NONE`] for leaves.
-    pub children: [u32; 2],
-    /// [`NONE`] for roots.
-    pub parent: u32,
-    /// Leaves in the subtree (1 for a leaf).
-    pub leaves: u32,
-    /// The triangles that this node's split creates (m(t) = this node): a range of the triangle
-    /// section. Empty for leaves.
-    pub tri_start: u32,
-    pub tri_count: u32,
-    pub reserved: u32,
-}
-
-/// An input triangle by its three corner leaves (input vertex ids), counter-clockwise.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
-pub struct VdtTriangle {
-    pub corners: [u32; 3],
-}
 
 pub mod build;
 pub mod collapse;
 pub mod simplify;
 
-pub use crate::format::vdt::{VdtFile, VdtHeader, VdtMetric};
+pub use crate::format::vdt::{VdtFile, VdtHeader, VdtMetric, VdtNode, VdtTriangle, NONE};
 
 /// The whole `relief mesh build` pipeline in one call: the VDT forest of `mesh` out of core
 /// ([`build::build_vdt_from_mesh`]), then blocked into the meta-node file `output`

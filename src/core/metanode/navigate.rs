@@ -32,9 +32,9 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::format::metanode::{parse_block, BlockView, MetaNodeFile, MnNode, MntEntry};
 use crate::format::{self, FileKind};
+use crate::lod::metric::Isotropic;
 use crate::lod::Lod;
 use crate::pager::pool::{Direction, Urgent};
-use crate::refine::metric::Isotropic;
 
 /// Where meta-nodes come from. `with_block` gives `None` when the block is not in memory (a
 /// miss for the caller); the counting calls are the buffer pool's protocol and no-ops elsewhere.

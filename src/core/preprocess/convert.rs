@@ -33,7 +33,7 @@ use crate::preprocess::fill;
 use crate::sys::cancel;
 use crate::sys::mem::AnonSampler;
 use crate::sys::progress::Progress;
-use crate::sys::scratch::ScratchMap;
+use crate::sys::scratch::{file_system_limit, ScratchMap};
 
 /// Mean Earth radius (IUGG), used to turn degrees into metres at the grid's centre latitude.
 pub const EARTH_RADIUS_M: f64 = 6_371_008.8;
@@ -117,16 +117,6 @@ pub struct ConvertReport {
     pub steps: StepSeconds,
     pub vertices_per_s: f64,
     pub peak_rss_anon_bytes: u64,
-}
-
-/// A failed `set_len`; EFBIG (larger than the file system's largest file) says how large.
-pub(crate) fn file_system_limit(e: std::io::Error, path: &Path, len: u64) -> Error {
-    if e.raw_os_error() == Some(libc::EFBIG) {
-        let problem =
-            format!("{} is more than this file system allows in one file ({e})", crate::error::tib(len as u128));
-        return Error::io(path, std::io::Error::new(e.kind(), problem));
-    }
-    Error::io(path, e)
 }
 
 /// Faults a mapped region in, chunk by chunk from its start, on a helper thread

@@ -205,8 +205,8 @@ mod tests {
     use super::*;
     use crate::camera::Camera;
     use crate::layout::hierarchy::{pack, split_children_packed};
+    use crate::lod::metric::Isotropic;
     use crate::lod::Test;
-    use crate::refine::metric::Isotropic;
     use crate::refine::{RefineOptions, View};
     use glam::DVec3;
 

@@ -12,8 +12,8 @@ use std::collections::HashSet;
 use serde::Serialize;
 
 use crate::layout::{Layout, Stored};
+use crate::lod::metric::ErrorMetric;
 use crate::preprocess::raw_error;
-use crate::refine::metric::ErrorMetric;
 use crate::refine::{mesh_triangles, RecordSource, Strip, View};
 
 /// Size of the minimal mesh.

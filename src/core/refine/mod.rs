@@ -19,13 +19,14 @@
 
 pub mod check;
 pub(crate) mod lanes;
-pub mod metric;
 pub mod minimal;
 pub mod progressive;
 pub mod records;
 pub mod report;
 mod walk;
 
+// The error metrics live in `lod`, which every backend's test shares.
+pub use crate::lod::metric;
 pub use records::{MappedRecords, PagerRecords, RecordSlice, RecordSource};
 use walk::{probe_vertex, Carry, Counted, MorphTri, NoMorph, Tally, Uncounted, Walk};
 
@@ -36,8 +37,8 @@ use crate::camera::Camera;
 use crate::format::terrain::{Record, TerrainFile};
 use crate::layout::hierarchy::Grid;
 use crate::layout::{Layout, LayoutVisitor, Vertex};
+use crate::lod::metric::{ErrorMetric, Isotropic, MetricKind, Projected};
 use crate::lod::Lod;
-use crate::refine::metric::{ErrorMetric, Isotropic, MetricKind, Projected};
 
 /// A strip vertex: grid coordinates (`x` east, `y` north, in posts). The renderer turns them into
 /// positions from its own copy of the heights.

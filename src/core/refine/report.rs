@@ -8,8 +8,8 @@ use serde::Serialize;
 use crate::camera::Camera;
 use crate::format::terrain::TerrainFile;
 use crate::layout::Layout;
+use crate::lod::metric::ErrorMetric;
 use crate::refine::check::{check_strip, MeshCheck};
-use crate::refine::metric::ErrorMetric;
 use crate::refine::minimal::minimal_mesh;
 use crate::refine::{with_view, RecordSlice, RefineOptions, Refiner, Strip, View, ViewVisitor};
 

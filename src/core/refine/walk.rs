@@ -19,9 +19,9 @@
 use crate::format::terrain::Record;
 use crate::layout::hierarchy::{pack, split_children_packed, unpack};
 use crate::layout::{Layout, Vertex};
+use crate::lod::metric::ErrorMetric;
 use crate::lod::Test;
 use crate::refine::lanes::{self, record_of};
-use crate::refine::metric::ErrorMetric;
 use crate::refine::records::RecordSource;
 use crate::refine::{Morph, RefineCounters, Strip, StripVertex, View};
 

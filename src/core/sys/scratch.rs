@@ -6,8 +6,7 @@ use std::path::Path;
 
 use memmap2::MmapMut;
 
-use crate::error::{IoContext, Result};
-use crate::preprocess::convert::file_system_limit;
+use crate::error::{Error, IoContext, Result};
 
 /// A writable mapping of a fresh, already unlinked file (it vanishes with the process, whatever
 /// the exit).
@@ -37,4 +36,14 @@ impl ScratchMap {
     pub fn slice<T: bytemuck::Pod>(&self) -> &[T] {
         bytemuck::cast_slice(&self.map[..self.len])
     }
+}
+
+/// A failed `set_len`; EFBIG (larger than the file system's largest file) says how large.
+pub(crate) fn file_system_limit(e: std::io::Error, path: &Path, len: u64) -> Error {
+    if e.raw_os_error() == Some(libc::EFBIG) {
+        let problem =
+            format!("{} is more than this file system allows in one file ({e})", crate::error::tib(len as u128));
+        return Error::io(path, std::io::Error::new(e.kind(), problem));
+    }
+    Error::io(path, e)
 }

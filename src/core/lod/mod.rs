@@ -20,7 +20,9 @@
 use glam::DVec3;
 
 use crate::camera::{Camera, PLANES};
-use crate::refine::metric::{ErrorMetric, Isotropic};
+use metric::{ErrorMetric, Isotropic};
+
+pub mod metric;
 
 /// What the test says of one vertex or node.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
