@@ -112,7 +112,13 @@ fn the_refinement_thread_survives_random_requests_from_several_threads() {
                 std::thread::spawn(move || {
                     let mut rng = Rng(100 + c);
                     let mut got = 0u64;
-                    for seq in 0..2000u64 {
+                    // At least 2000 random calls, and on until this client has taken a strip:
+                    // in a debug build on a loaded 2-core machine one refinement can outlast
+                    // 2000 calls, so a fixed count alone made "no strip was taken" a matter of speed.
+                    let started = Instant::now();
+                    let mut seq = 0u64;
+                    while seq < 2000 || (got == 0 && started.elapsed() < Duration::from_secs(60)) {
+                        seq += 1;
                         let camera = random_camera(&mut rng, &terrain);
                         let options = RefineOptions { tolerance_px: 4.0, ..RefineOptions::default() };
                         match rng.next() % 4 {

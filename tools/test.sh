@@ -16,7 +16,8 @@ command -v xvfb-run >/dev/null || need+=(xvfb xauth)
 command -v xdotool >/dev/null || need+=(xdotool)
 # The coordinate-system tests compare with GDAL's own reading (gdalinfo, gdal_translate).
 command -v gdalinfo >/dev/null || need+=(gdal-bin)
-# The `gdal` feature (ZSTD, LERC, VRT, … through libgdal) links the system's GDAL.
+# The `gdal` feature (LERC, VRT, JPEG and the other formats only libgdal reads; ZSTD, LZW and
+# Deflate GeoTIFFs are read natively) links the system's GDAL.
 pkg-config --exists gdal 2>/dev/null || need+=(libgdal-dev pkg-config)
 if [ ${#need[@]} -gt 0 ] && command -v apt-get >/dev/null; then
   sudo=""; [ "$(id -u)" -eq 0 ] || sudo="sudo"

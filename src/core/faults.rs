@@ -213,8 +213,21 @@ pub fn terrain_in_layout(input: &Path, kind: LayoutKind, cache_dir: &Path, progr
 /// A remote terrain file copied whole into `cache_dir` (once: kept while its location, payload
 /// checksum and ETag stay the same), read in the largest requests the remote source makes.
 fn local_copy(location: &Path, cache_dir: &Path, progress: &Progress) -> Result<PathBuf> {
-    let t = TerrainFile::open(location)?;
-    let etag = t.remote().and_then(|r| r.etag()).unwrap_or("");
+    // The bytes as stored (a file with pages left out is copied as it is, page map and all): the
+    // remote file itself, not the terrain's logical view of it. A download, not a backend's read,
+    // so it goes around the pager.
+    let remote = match crate::pager::remote::is_remote(location) {
+        true => Some(std::sync::Arc::new(crate::pager::remote::RemoteFile::open(
+            &location.to_string_lossy(),
+            crate::pager::remote::RemoteOptions::from_env()?,
+        )?)),
+        false => None,
+    };
+    let t = match &remote {
+        Some(r) => TerrainFile::from_source(location, r.clone(), Access::Read)?,
+        None => TerrainFile::open(location)?,
+    };
+    let etag = remote.as_ref().and_then(|r| r.etag()).unwrap_or("");
     let checksum = t.header().payload_checksum;
     let key = xxhash_rust::xxh3::xxh3_64(format!("{}:{checksum:016x}:{etag}", location.display()).as_bytes());
     let stem = location.file_stem().map_or("terrain".into(), |s| s.to_string_lossy().into_owned());
@@ -223,13 +236,12 @@ fn local_copy(location: &Path, cache_dir: &Path, progress: &Progress) -> Result<
         return Ok(copy);
     }
     std::fs::create_dir_all(cache_dir).map_err(|e| Error::io(cache_dir, e))?;
-    // The bytes as stored (a file with pages left out is copied as it is, page map and all).
-    let source: &dyn crate::pager::source::Source = match t.remote() {
-        Some(r) => r,
+    let source: &dyn crate::pager::source::Source = match &remote {
+        Some(r) => &**r,
         None => t.pager().source(),
     };
     let len = source.len();
-    let chunk = t.remote().map_or(4 << 20, |r| r.options().max_request).max(4096);
+    let chunk = remote.as_ref().map_or(4 << 20, |r| r.options().max_request).max(4096);
     let bar = progress.bar("download", len, "bytes");
     let mut failed = None;
     crate::sys::atomic_file::write(&copy, |w| {

@@ -34,6 +34,7 @@ mod common {
 }
 
 mod backends;
+mod compressed_tiffs;
 mod dem_readers;
 mod exaggeration;
 mod export;

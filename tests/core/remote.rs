@@ -34,10 +34,13 @@ fn options(cache: &Path) -> RemoteOptions {
     RemoteOptions { cache_dir: Some(cache.to_path_buf()), backoff: Duration::from_millis(2), ..Default::default() }
 }
 
+/// The view every test here flies: over Zürich from its southern edge, looking north.
+fn view() -> Camera {
+    Camera::new(DVec3::new(6400.0, 640.0, 1126.0), DVec3::new(6400.0, 7680.0, 393.0), DVec3::Z, 60.0, 800, 450).unwrap()
+}
+
 fn strip_of(t: &TerrainFile) -> Strip {
-    let cam =
-        Camera::new(DVec3::new(6400.0, 640.0, 1126.0), DVec3::new(6400.0, 7680.0, 393.0), DVec3::Z, 60.0, 800, 450)
-            .unwrap();
+    let cam = view();
     let mut strip = Strip::new();
     Refiner::new(1)
         .unwrap()
@@ -54,19 +57,19 @@ fn a_served_terrain_refines_to_the_local_strip_and_is_cached_for_the_next_open()
     let url = server.url("zurich.relief");
     let cache = dir.path().join("cache");
     let remote = TerrainFile::open_remote(&url, options(&cache), Access::Map).unwrap();
-    let opened = remote.remote().unwrap().stats();
+    let opened = remote.pager().network().unwrap();
     assert_eq!(opened.requests, 1, "opening costs one request");
     let (h, l) = (remote.header(), TerrainFile::open(&local).unwrap().header().clone());
     assert_eq!((h.records, h.payload_checksum, h.n), (l.records, l.payload_checksum, l.n));
     let want = strip_of(&TerrainFile::open(&local).unwrap());
     assert_eq!(strip_of(&remote).vertices, want.vertices);
-    let fetched = remote.remote().unwrap().stats();
+    let fetched = remote.pager().network().unwrap();
     assert!(fetched.requests > 1 && fetched.bytes > opened.bytes);
     drop(remote);
     // A second open (another process would see the same) reads the pages from the cache.
     let again = TerrainFile::open_remote(&url, options(&cache), Access::Read).unwrap();
     assert_eq!(strip_of(&again).vertices, want.vertices);
-    let s = again.remote().unwrap().stats();
+    let s = again.pager().network().unwrap();
     assert_eq!(s.requests, 1, "only the open goes to the network: {s:?}");
     assert!(s.cache_hit_pages > 0);
 }
@@ -182,9 +185,7 @@ fn progressive_flight(layout: LayoutKind) {
     let grid = remote.grid();
     let refine = RefineOptions { tolerance_px: 2.0, ..Default::default() };
     let mut source = TerrainSource::new(remote.clone(), refine, 1, false).unwrap();
-    let cam =
-        Camera::new(DVec3::new(6400.0, 640.0, 1126.0), DVec3::new(6400.0, 7680.0, 393.0), DVec3::Z, 60.0, 800, 450)
-            .unwrap();
+    let cam = view();
     let conforming = |s: &TerrainSource| {
         let Frame::Strip(strip) = s.frame() else { unreachable!() };
         let inserted: HashSet<(u32, u32)> = strip.vertices.iter().map(|v| (v.x, v.y)).collect();
@@ -208,7 +209,7 @@ fn progressive_flight(layout: LayoutKind) {
     assert!(frames > 2, "{layout}: frames were drawn while the data arrived");
     let want = strip_of(&TerrainFile::open(&local).unwrap());
     assert_eq!(conforming(&source), want.vertices, "{layout}: converged to the local strip");
-    let stats = remote.remote().unwrap().stats();
+    let stats = remote.pager().network().unwrap();
     eprintln!(
         "{layout}: complete after {frames} frames, {} round trips, {} requests, {} bytes",
         last.round_trips, stats.requests, stats.bytes
@@ -243,7 +244,7 @@ fn an_s3_location_with_credentials_is_read_with_signed_requests_from_its_endpoin
     };
     let remote = TerrainFile::open_remote("s3://dem/terrains/zurich.relief", o, Access::Read).unwrap();
     assert_eq!(strip_of(&remote).vertices, strip_of(&TerrainFile::open(&local).unwrap()).vertices);
-    let stats = remote.remote().unwrap().stats();
+    let stats = remote.pager().network().unwrap();
     assert!(stats.requests > 1 && stats.retries == 0, "{stats:?}");
     let mut o = options(&dir.path().join("c2"));
     o.s3 = S3Config { endpoint: Some(server.url("").trim_end_matches('/').to_string()), ..Default::default() };
@@ -268,9 +269,7 @@ fn a_server_gone_mid_flight_ends_the_flight_with_a_one_line_error() {
     server.stop();
     let mut source =
         TerrainSource::new(remote, RefineOptions { tolerance_px: 2.0, ..Default::default() }, 1, false).unwrap();
-    let cam =
-        Camera::new(DVec3::new(6400.0, 640.0, 1126.0), DVec3::new(6400.0, 7680.0, 393.0), DVec3::Z, 60.0, 800, 450)
-            .unwrap();
+    let cam = view();
     let first = source.update(&cam, 2.0).unwrap();
     assert!(first.coarse, "drawn from the opening request: {first:?}");
     let mut error = None;
@@ -315,4 +314,63 @@ fn sequential_reads_are_served_by_growing_read_ahead() {
     let s = other.stats();
     assert_eq!(s.requests, 1 + 5, "the open and one request per read: {s:?}");
     assert_eq!(s.bytes, (1 << 20) + 5 * 4096, "one page each: {s:?}");
+}
+
+/// Records every byte range a pager reports (the observer a page-fault experiment attaches).
+#[derive(Default)]
+struct Recorder(std::sync::Mutex<Vec<(u64, u64)>>);
+
+impl relief_core::pager::PageObserver for Recorder {
+    fn read(&self, offset: u64, len: u64) {
+        self.0.lock().unwrap().push((offset, len));
+    }
+}
+
+/// A remote flight's reads go through the pager like a local flight's: the same observer,
+/// attached the same way, sees them; every block the local refinement read was fetched, none
+/// twice, and the pager's read counts say the same as the observer.
+#[test]
+fn a_remote_flight_reads_are_seen_by_the_observer_a_local_flight_reports_to() {
+    use relief_core::flight::frame::FrameSource;
+    use relief_core::flight::terrain::TerrainSource;
+    use std::collections::HashSet;
+    use std::sync::Arc;
+
+    let dir = tempfile::tempdir().unwrap();
+    let local_path = zurich(dir.path());
+    let server = serve(&local_path, 5);
+    let url = server.url("zurich.relief");
+    let refine = RefineOptions { tolerance_px: 2.0, ..Default::default() };
+    let cam = view();
+    let fly = |terrain: Arc<TerrainFile>| {
+        let seen = Arc::new(Recorder::default());
+        terrain.pager().observe(seen.clone()).unwrap();
+        let mut source = TerrainSource::new(terrain.clone(), refine.clone(), 1, false).unwrap();
+        let mut frames = 0;
+        loop {
+            let f = source.update(&cam, 2.0).unwrap();
+            frames += 1;
+            if !f.coarse || frames == 2000 {
+                assert!(!f.coarse, "still coarse after {frames} frames");
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let reads: Vec<(u64, u64)> = seen.0.lock().unwrap().clone();
+        (reads, terrain.pager().reads())
+    };
+    let local = Arc::new(TerrainFile::open_with(&local_path, Access::Read).unwrap());
+    let (local_reads, _) = fly(local);
+    let remote = Arc::new(TerrainFile::open_remote(&url, options(&dir.path().join("cache")), Access::Read).unwrap());
+    let (remote_reads, remote_stats) = fly(remote.clone());
+    assert!(!local_reads.is_empty() && !remote_reads.is_empty());
+    let remote_blocks: HashSet<(u64, u64)> = remote_reads.iter().copied().collect();
+    assert_eq!(remote_blocks.len(), remote_reads.len(), "a remote block is read once");
+    let local_blocks: HashSet<(u64, u64)> = local_reads.iter().copied().collect();
+    let missing: Vec<_> = local_blocks.difference(&remote_blocks).collect();
+    assert!(missing.is_empty(), "blocks the local flight read that the remote one never did: {missing:?}");
+    assert_eq!(remote_stats.blocks, remote_reads.len() as u64);
+    assert_eq!(remote_stats.bytes, remote_reads.iter().map(|r| r.1).sum::<u64>());
+    let net = remote.pager().network().unwrap();
+    assert!(net.requests > 1 && net.bytes > 0, "{net:?}");
 }

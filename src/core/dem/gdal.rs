@@ -1,9 +1,9 @@
 //! Rasters through GDAL (cargo feature `gdal`, over the system's libgdal): what the native readers
-//! do not decode — GeoTIFFs compressed with ZSTD, LZMA, LERC, JPEG 2000 or WebP, and any other
+//! do not decode — GeoTIFFs compressed with LERC, LZMA, JPEG 2000, JPEG XL or WebP, and any other
 //! raster GDAL opens (VRT mosaics, NetCDF, JPEG 2000, Erdas, …).
 //!
 //! Two uses: [`with_info`] decodes the pixels of a GeoTIFF whose header the native reader already
-//! read (so a ZSTD copy gives the same [`DemInfo`], hence the same terrain file, as the original);
+//! read (so a LERC copy gives the same [`DemInfo`], hence the same terrain file, as the original);
 //! [`open`] reads header and pixels of anything else, its georeferencing from GDAL's geotransform
 //! and spatial reference. Band 1 is read, in its own sample type, one window of whole blocks at a
 //! time.

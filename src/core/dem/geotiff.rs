@@ -1,14 +1,15 @@
 //! GeoTIFF / TIFF reader: 8/16/32/64-bit signed and unsigned integers, 16/32/64-bit floats, in
-//! strips or tiles, with any compression the `tiff` crate decodes (none, deflate, LZW, PackBits,
-//! …). Multi-sample pixels contribute their first sample. Georeferencing comes from the
-//! ModelPixelScale / ModelTiepoint / GeoKeyDirectory tags (or ModelTransformation): the post
-//! spacing, the CRS's EPSG codes and units, and where the posts lie in it ([`Georef`]); nodata
-//! from GDAL's `GDAL_NODATA` tag.
+//! strips or tiles, with any compression the `tiff` crate decodes (none, deflate, LZW, ZSTD,
+//! PackBits, JPEG; horizontal and floating-point predictors too). Multi-sample pixels contribute
+//! their first sample. Georeferencing comes from the ModelPixelScale / ModelTiepoint /
+//! GeoKeyDirectory tags (or ModelTransformation): the post spacing, the CRS's EPSG codes and
+//! units, and where the posts lie in it ([`Georef`]); nodata from GDAL's `GDAL_NODATA` tag.
 //!
 //! The image is streamed one chunk (strip or tile) at a time. Compressions the `tiff` crate does
-//! not decode (ZSTD, LZMA, LERC, WebP, JPEG 2000) are decoded by GDAL where relief is built with
-//! the `gdal` feature, the header still read here. Lossy ones (JPEG, lossy WebP, LERC with a
-//! non-zero error bound, JPEG 2000) are refused unless allowed ([`super::OpenOptions`]).
+//! not decode (LERC, LZMA, WebP, JPEG 2000, JPEG XL) are decoded by GDAL where relief is built
+//! with the `gdal` feature, the header still read here; without it they are refused with one line
+//! naming the file and the compression. Lossy ones (JPEG, lossy WebP, LERC with a non-zero error
+//! bound, JPEG 2000) are refused unless allowed ([`super::OpenOptions`]).
 
 use std::fs::File;
 use std::io::BufReader;
@@ -43,8 +44,9 @@ const RASTER_PIXEL_IS_POINT: u16 = 2;
 const USER_DEFINED: u16 = 32767;
 
 const COMPRESSION_NONE: u16 = 1;
-/// TIFF compressions the `tiff` crate decodes: none, LZW, deflate (both codes), PackBits, JPEG.
-const NATIVE_COMPRESSIONS: [u16; 6] = [COMPRESSION_NONE, 5, 8, 32946, 32773, 7];
+/// TIFF compressions the `tiff` crate decodes: none, LZW, deflate (both codes), PackBits, JPEG,
+/// ZSTD (its `zstd` feature).
+const NATIVE_COMPRESSIONS: [u16; 7] = [COMPRESSION_NONE, 5, 8, 32946, 32773, 7, 50000];
 
 /// An open GeoTIFF.
 struct GeoTiff {
@@ -384,8 +386,6 @@ mod lossy {
     const JPEG: u16 = 7;
     const JPEG2000: u16 = 34712;
     const LERC: u16 = 34887;
-    #[cfg(not(feature = "gdal"))]
-    const ZSTD: u16 = 50000;
     const WEBP: u16 = 50001;
     const JPEGXL: u16 = 50002;
     #[cfg(not(feature = "gdal"))]
@@ -400,7 +400,6 @@ mod lossy {
             OLD_JPEG | JPEG => "JPEG".into(),
             JPEG2000 => "JPEG 2000".into(),
             LERC => "LERC".into(),
-            ZSTD => "ZSTD".into(),
             WEBP => "WebP".into(),
             JPEGXL => "JPEG XL".into(),
             LZMA => "LZMA".into(),

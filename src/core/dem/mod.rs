@@ -29,8 +29,8 @@ use crate::error::{Error, IoContext, Result};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum DemFormat {
     /// GeoTIFF / TIFF: 8/16/32/64-bit integers, f16/f32/f64; strips or tiles; uncompressed,
-    /// deflate, LZW, PackBits, JPEG (what the `tiff` crate decodes), and with the `gdal` feature
-    /// ZSTD, LZMA, LERC, WebP and JPEG 2000 through GDAL.
+    /// deflate, LZW, ZSTD, PackBits, JPEG (what the `tiff` crate decodes), and with the `gdal`
+    /// feature LERC, LZMA, WebP, JPEG 2000 and JPEG XL through GDAL.
     GeoTiff,
     /// Grayscale PNG, 8 or 16 bits: the sample value is the height.
     Png,

@@ -15,8 +15,8 @@ use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::format::terrain::TerrainFile;
 use crate::mesh::Bounds;
-use crate::pager::remote::RemoteStats;
 use crate::pager::ReadStats;
+use crate::pager::RemoteStats;
 use crate::refine::progressive::{Progressive, ProgressiveFrame, ProgressiveOptions};
 use crate::refine::{RefineOptions, Refiner, Strip};
 use crate::sys::mem;
@@ -110,9 +110,9 @@ pub struct Engine {
 impl Engine {
     /// On `threads` threads; progressive when `terrain` is remote.
     pub fn new(terrain: &Arc<TerrainFile>, threads: usize) -> Result<Engine> {
-        let progressive = match terrain.remote() {
-            Some(_) => Some(Progressive::new(terrain.clone(), ProgressiveOptions::from_env()?)?),
-            None => None,
+        let progressive = match terrain.is_remote() {
+            true => Some(Progressive::new(terrain.clone(), ProgressiveOptions::from_env()?)?),
+            false => None,
         };
         Ok(Engine { refiner: Refiner::new(threads)?, progressive })
     }
@@ -253,7 +253,7 @@ impl TerrainSource {
             Mode::Sync(Engine::new(&terrain, threads)?)
         };
         let reads = terrain.pager().reads();
-        let remote = terrain.remote().map(|r| r.stats()).unwrap_or_default();
+        let remote = terrain.pager().network().unwrap_or_default();
         Ok(TerrainSource {
             terrain,
             options,
@@ -318,7 +318,7 @@ impl FrameSource for TerrainSource {
         let reads = self.terrain.pager().reads();
         let (pages_read, bytes_read) = (reads.pages - self.reads.pages, reads.bytes - self.reads.bytes);
         self.reads = reads;
-        let remote = self.terrain.remote().map(|r| r.stats()).unwrap_or_default();
+        let remote = self.terrain.pager().network().unwrap_or_default();
         let (requests, net_bytes) = (remote.requests - self.remote.requests, remote.bytes - self.remote.bytes);
         self.remote = remote;
         let Some(r) = refined else {
@@ -364,7 +364,7 @@ impl FrameSource for TerrainSource {
     }
 
     fn settle(&mut self, camera: &Camera, tolerance_px: f64, timeout: std::time::Duration) -> Result<Option<u64>> {
-        if self.terrain.remote().is_none() {
+        if !self.terrain.is_remote() {
             return Ok(None);
         }
         let deadline = Instant::now() + timeout;

@@ -39,7 +39,7 @@ use serde::Serialize;
 
 use super::{read_header, FileKind, Format, HeaderBytes, Problem};
 use crate::error::{Error, Result};
-use crate::pager::{source, Access, FixedBlocks, Pager};
+use crate::pager::{Access, FixedBlocks, Pager};
 use crate::sys::progress::Progress;
 use crate::sys::scratch::ScratchMap;
 
@@ -261,7 +261,7 @@ impl ImageryFile {
     /// Opens and validates an imagery tile file (magic, version, header checksum, fields, exact
     /// size), to be read with `access`. The payload checksum is checked by [`Self::verify`].
     pub fn open(path: &Path, access: Access) -> Result<ImageryFile> {
-        let source = source::open(path, access.source_kind())?;
+        let source = crate::pager::open(path, access.source_kind())?;
         let header: ImageryHeader = read_header(&*source)?;
         let grid = header.grid();
         let table = FixedBlocks {

@@ -33,7 +33,7 @@ use serde::Serialize;
 use super::vdt::NONE;
 use super::{corrupt, read_header, section_end, Bounds, FileKind, Format, HeaderBytes, Problem};
 use crate::error::Result;
-use crate::pager::{source, Access, Block, Extent, ExtentTable, Pager};
+use crate::pager::{Access, Block, Extent, ExtentTable, Pager};
 
 pub const VERSION: u32 = 1;
 /// The header region: the container's 256-byte block, then zeros up to the meta-node table.
@@ -296,7 +296,7 @@ impl MetaNodeFile {
         device: Option<crate::pager::device::DeviceSpec>,
         io: crate::pager::PoolIo,
     ) -> Result<MetaNodeFile> {
-        let source = source::open_on(path, access.source_kind(), device)?;
+        let source = crate::pager::open_on(path, access.source_kind(), device)?;
         let header: MetaHeader = read_header(&*source)?;
         let bad = |what: String| corrupt(path, FileKind::MetaNode, what);
         let mut table = vec![0u8; (header.metanodes * MNT_ENTRY_BYTES) as usize];

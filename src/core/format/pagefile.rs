@@ -41,7 +41,7 @@ use serde::Serialize;
 
 use super::{corrupt, read_header, section_end, Bounds, FileKind, Format, HeaderBytes, Problem};
 use crate::error::Result;
-use crate::pager::{source, Access, Block, BlockBuf, FixedBlocks, Pager};
+use crate::pager::{Access, Block, BlockBuf, FixedBlocks, Pager};
 
 pub const VERSION: u32 = 1;
 pub const HEADER_BYTES: usize = 256;
@@ -338,7 +338,7 @@ impl PageFile {
     /// [`Self::open_with`], the file served through an emulated device when `device` is given
     /// ([`crate::pager::device`]).
     pub fn open_on(path: &Path, access: Access, device: Option<crate::pager::device::DeviceSpec>) -> Result<PageFile> {
-        let source = source::open_on(path, access.source_kind(), device)?;
+        let source = crate::pager::open_on(path, access.source_kind(), device)?;
         let header: PageHeader = read_header(&*source)?;
         let bad = |what: String| corrupt(path, FileKind::Pages, what);
         let mut tables = vec![0u8; (header.refs_offset + header.kd_refs * 4) as usize - HEADER_BYTES];

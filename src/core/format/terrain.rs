@@ -382,6 +382,7 @@ pub struct TerrainFile {
     header: Header,
     layout: AnyLayout,
     pager: Pager,
+    page_map: Option<PageMap>,
 }
 
 impl TerrainFile {
@@ -407,8 +408,8 @@ impl TerrainFile {
         access: Access,
         device: Option<crate::pager::device::DeviceSpec>,
     ) -> Result<TerrainFile> {
-        let source = source::open_on(path, access.source_kind(), device)?;
-        TerrainFile::open_source(path, source, access)
+        let source = crate::pager::open_on(path, access.source_kind(), device)?;
+        TerrainFile::from_source(path, source, access)
     }
 
     /// A remote terrain file (`http(s)://`, `s3://`) read as `options` say (cache, requests in
@@ -419,16 +420,18 @@ impl TerrainFile {
         access: Access,
     ) -> Result<TerrainFile> {
         let source = Arc::new(crate::pager::remote::RemoteFile::open(location, options)?);
-        TerrainFile::open_source(Path::new(location), source, access)
+        TerrainFile::from_source(Path::new(location), source, access)
     }
 
-    fn open_source(path: &Path, source: Arc<dyn source::Source>, access: Access) -> Result<TerrainFile> {
+    /// A terrain file over an opened `source` (named `path` in errors), validated as
+    /// [`Self::open_with`] validates.
+    pub fn from_source(path: &Path, source: Arc<dyn source::Source>, access: Access) -> Result<TerrainFile> {
         let header: Header = read_header(&*source)?;
-        let source = if header.stores_pages() {
+        let (source, page_map) = if header.stores_pages() {
             let map = read_page_map(path, &*source, &header)?;
-            Arc::new(SparseFile::new(source, map)?) as Arc<dyn source::Source>
+            (Arc::new(SparseFile::new(source, map.clone())?) as Arc<dyn source::Source>, Some(map))
         } else {
-            source
+            (source, None)
         };
         let table = FixedBlocks {
             first: header.payload_offset,
@@ -438,7 +441,7 @@ impl TerrainFile {
         };
         let pager = Pager::new(source, Arc::new(table), access)?;
         let layout = header.layout();
-        Ok(TerrainFile { path: path.to_path_buf(), header, layout, pager })
+        Ok(TerrainFile { path: path.to_path_buf(), header, layout, pager, page_map })
     }
 
     pub fn path(&self) -> &Path {
@@ -459,20 +462,22 @@ impl TerrainFile {
 
     /// Bytes the file takes (pages left out do not count; see [`Header::stores_pages`]).
     pub fn stored_bytes(&self) -> u64 {
-        match self.pager.source().page_map() {
+        match &self.page_map {
             Some(m) => PAYLOAD_OFFSET * (1 + self.header.page_map_pages as u64) + stored_tail(m, &self.header),
             None => self.header.file_len(),
         }
     }
 
     /// Where payload pages are left out, which are stored where (pages of the file as read).
+    /// (The file's own table, as read at open; the pager reads through it in
+    /// [`crate::pager::sparse`].)
     pub fn page_map(&self) -> Option<&PageMap> {
-        self.pager.source().page_map()
+        self.page_map.as_ref()
     }
 
-    /// The remote file the records come from, where the terrain is remote.
-    pub fn remote(&self) -> Option<&crate::pager::remote::RemoteFile> {
-        self.pager.source().remote()
+    /// Whether the records come over a network (see [`Pager::network`] for what they cost).
+    pub fn is_remote(&self) -> bool {
+        self.pager.is_remote()
     }
 
     /// The pager the records are read through.

@@ -20,11 +20,14 @@
 //! nothing for the experiments.
 
 pub mod device;
+#[cfg(feature = "device")]
+pub mod fuse;
 pub mod lru;
 pub mod observer;
 pub mod os;
 pub mod pool;
 pub mod remote;
+#[cfg(feature = "serve")]
 pub mod serve;
 pub mod source;
 pub mod sparse;
@@ -42,7 +45,46 @@ pub use observer::{Faults, Granules, LruTrace, NoTrace, OsFaults, PageObserver};
 pub use os::{drop_from_page_cache, MemoryCap};
 pub use pool::PoolIo;
 use pool::{holders_for, BlockLoader, BufferPool};
-use source::{Source, SourceKind};
+pub use source::RemoteStats;
+use source::{Source, SourceKind, PAGE_BYTES};
+
+/// Opens `path` as a source of the given kind. A remote location (`http(s)://`, `s3://`, see
+/// [`remote`]) is read with range requests through its local cache, whatever the kind.
+pub fn open(path: &std::path::Path, kind: SourceKind) -> Result<Arc<dyn Source>> {
+    open_on(path, kind, None)
+}
+
+/// [`open`], a local file served through an emulated device when `device` is given (see
+/// [`device`]; the `device` feature): mapped or read as asked, from the device's served copy.
+pub fn open_on(
+    path: &std::path::Path,
+    kind: SourceKind,
+    device: Option<device::DeviceSpec>,
+) -> Result<Arc<dyn Source>> {
+    if let Some(spec) = device {
+        if remote::is_remote(path) {
+            return Err(Error::InvalidArgument(format!(
+                "{}: an emulated device is for local files (a remote one has its own latency)",
+                path.display()
+            )));
+        }
+        #[cfg(feature = "device")]
+        return Ok(Arc::new(fuse::OnDevice::open(path, kind, spec)?));
+        #[cfg(not(feature = "device"))]
+        return Err(Error::InvalidArgument(format!(
+            "{}: an emulated device ({spec}) needs relief built with the `device` feature",
+            path.display()
+        )));
+    }
+    if remote::is_remote(path) {
+        let location = path.to_string_lossy();
+        return Ok(Arc::new(remote::RemoteFile::open(&location, remote::RemoteOptions::from_env()?)?));
+    }
+    Ok(match kind {
+        SourceKind::Map => Arc::new(source::MappedFile::open(path)?),
+        SourceKind::Read => Arc::new(source::ReadFile::open(path)?),
+    })
+}
 
 /// Page size, validated: a power of two.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -398,7 +440,7 @@ impl Pager {
     /// coalesced span (the read and the blocks cut from it) on top of the holders.
     pub fn with_io(source: Arc<dyn Source>, table: Arc<dyn BlockTable>, access: Access, io: PoolIo) -> Result<Pager> {
         let observer = ObserverSlot::default();
-        let access = if access == Access::Map && source.remote().is_some() { Access::Read } else { access };
+        let access = if access == Access::Map && source.network().is_some() { Access::Read } else { access };
         let mode = match access {
             Access::Map => {
                 if source.mapped().is_none() {
@@ -571,7 +613,7 @@ impl Pager {
 
     /// What the emulated device under this pager's file has served, if it is on one.
     pub fn device(&self) -> Option<device::DeviceStats> {
-        self.source.device().map(|d| d.stats())
+        self.source.device_stats()
     }
 
     /// [`Self::device`], zero without a device (for per-frame differences).
@@ -581,7 +623,98 @@ impl Pager {
 
     /// The emulated device under this pager's file, if it is on one.
     pub fn device_spec(&self) -> Option<device::DeviceSpec> {
-        self.source.device().map(|d| d.spec())
+        self.source.device_spec()
+    }
+
+    /// What reading this pager's file has cost over the network, where it is remote.
+    pub fn network(&self) -> Option<RemoteStats> {
+        self.source.network()
+    }
+
+    /// Whether the file is read over a network (every read may wait on it).
+    pub fn is_remote(&self) -> bool {
+        self.source.network().is_some()
+    }
+
+    /// Which blocks `0..blocks()` can be had now without waiting on a network: all of a local
+    /// file's; of a remote file's, those whose pages are in its local cache.
+    pub fn resident_blocks(&self) -> Result<Vec<bool>> {
+        let n = self.table.blocks();
+        let pages = self.source.len().div_ceil(PAGE_BYTES);
+        let resident = self.source.resident_pages(0, pages)?;
+        (0..n)
+            .map(|id| {
+                let e = self.extent(id)?;
+                let (p, q) = (e.offset / PAGE_BYTES, (e.offset + e.bytes).div_ceil(PAGE_BYTES));
+                Ok(resident.get(p as usize..q as usize).is_some_and(|r| r.iter().all(|&x| x)))
+            })
+            .collect()
+    }
+
+    /// Reads blocks `ids` in as few requests as the source can make (a remote file: coalesced
+    /// range requests, several in flight; pages in its cache without any) and calls `f` with
+    /// each, in ascending order of id. Counted in [`Self::reads`] (read and pool access) and
+    /// reported to the observer as any other read. For look-ahead:
+    /// many blocks asked for at once cost one round trip, where [`Self::block`] costs one each.
+    pub fn read_blocks(&self, ids: &[u32], mut f: impl FnMut(u32, &[u8]) -> Result<()>) -> Result<()> {
+        let mut ids = ids.to_vec();
+        ids.sort_unstable();
+        ids.dedup();
+        let extents = ids.iter().map(|&id| self.extent(id)).collect::<Result<Vec<Extent>>>()?;
+        let mut bufs: Vec<BlockBuf> = extents
+            .iter()
+            .map(|e| {
+                let mut b = BlockBuf::default();
+                b.resize(e.bytes as usize);
+                b
+            })
+            .collect();
+        // Page runs covering the blocks, merged where they touch.
+        let mut runs: Vec<(u64, u64)> = Vec::new();
+        for e in &extents {
+            let (p, q) = (e.offset / PAGE_BYTES, (e.offset + e.bytes).div_ceil(PAGE_BYTES));
+            match runs.last_mut() {
+                Some(last) if last.1 >= p => last.1 = last.1.max(q),
+                _ => runs.push((p, q)),
+            }
+        }
+        // Blocks of one table ascend in the file with their ids (every relief table does).
+        let ordered = extents.windows(2).all(|w| w[0].offset + w[0].bytes <= w[1].offset);
+        if !ordered {
+            return Err(Error::InvalidArgument(format!(
+                "{}: blocks to read together overlap or are out of file order",
+                self.source.path().display()
+            )));
+        }
+        self.source.read_page_runs(&runs, &mut |page, bytes| {
+            let (lo, hi) = (page * PAGE_BYTES, page * PAGE_BYTES + bytes.len() as u64);
+            // The first block ending after `lo`, then every block starting before `hi`.
+            let first = extents.partition_point(|e| e.offset + e.bytes <= lo);
+            for (e, buf) in extents[first..].iter().zip(&mut bufs[first..]) {
+                if e.offset >= hi {
+                    break;
+                }
+                let (s, t) = (e.offset.max(lo), (e.offset + e.bytes).min(hi));
+                if s < t {
+                    buf.bytes_mut()[(s - e.offset) as usize..(t - e.offset) as usize]
+                        .copy_from_slice(&bytes[(s - lo) as usize..(t - lo) as usize]);
+                }
+            }
+            Ok(())
+        })?;
+        let counter = match &self.mode {
+            Mode::Map => None,
+            Mode::Read(r) => Some(r),
+            Mode::Pool(p) => Some(&p.loader().reads),
+        };
+        for ((&id, e), buf) in ids.iter().zip(&extents).zip(&bufs) {
+            if let Some(c) = counter {
+                c.add(&*self.table, 1, e.bytes);
+            }
+            report(&self.observer, *e);
+            f(id, buf.bytes())?;
+        }
+        Ok(())
     }
 
     /// No readahead (see [`Source::advise_random`]).
@@ -632,7 +765,7 @@ mod tests {
         let table: Arc<dyn BlockTable> =
             Arc::new(FixedBlocks { first: 96, block_bytes: 4096, end: 40_000, page_bytes: 4096 });
         for access in [Access::Map, Access::Read, Access::Pool { bytes: 6 * 4096 }] {
-            let pager = Pager::new(source::open(&path, access.source_kind()).unwrap(), table.clone(), access).unwrap();
+            let pager = Pager::new(open(&path, access.source_kind()).unwrap(), table.clone(), access).unwrap();
             for id in [0u32, 9, 3, 0, 9] {
                 let e = pager.extent(id).unwrap();
                 let want = &bytes[e.offset as usize..(e.offset + e.bytes) as usize];
@@ -665,7 +798,7 @@ mod tests {
         let table: Arc<dyn BlockTable> =
             Arc::new(FixedBlocks { first: 0, block_bytes: 1024, end: 16 * 1024, page_bytes: 1024 });
         for access in [Access::Map, Access::Read, Access::Pool { bytes: 8 * 1024 }] {
-            let pager = Pager::new(source::open(&path, access.source_kind()).unwrap(), table.clone(), access).unwrap();
+            let pager = Pager::new(open(&path, access.source_kind()).unwrap(), table.clone(), access).unwrap();
             let trace = Arc::new(LruTrace::new(LruCache::with_pages(64), PageGeometry::new(1024).unwrap()));
             pager.observe(trace.clone()).unwrap();
             assert!(pager.observe(trace.clone()).is_err(), "one observer per pager");
@@ -692,12 +825,12 @@ mod tests {
         let table: Arc<dyn BlockTable> =
             Arc::new(FixedBlocks { first: 0, block_bytes: 1024, end: 10 * 1024, page_bytes: 1024 });
         let access = Access::Pool { bytes: 8 * 1024 };
-        let pager = Pager::new(source::open(&path, access.source_kind()).unwrap(), table, access).unwrap();
+        let pager = Pager::new(open(&path, access.source_kind()).unwrap(), table, access).unwrap();
         assert!(pager.try_block(4).unwrap().is_none(), "not resident: an urgent load is queued");
         pager.pool().unwrap().drain().unwrap();
         assert!(pager.try_block(4).unwrap().is_some());
         let e = Pager::new(
-            source::open(&path, SourceKind::Read).unwrap(),
+            open(&path, SourceKind::Read).unwrap(),
             Arc::new(FixedBlocks { first: 0, block_bytes: 1024, end: 10 * 1024, page_bytes: 1024 }),
             Access::Map,
         )
@@ -713,7 +846,7 @@ mod tests {
             Arc::new(FixedBlocks { first: 0, block_bytes: 1024, end: 16 * 1024, page_bytes: 1024 });
         let access = Access::Pool { bytes: 16 * 1024 };
         let io = PoolIo { threads: 1, coalesce_bytes: 4 * 1024 };
-        let pager = Pager::with_io(source::open(&path, access.source_kind()).unwrap(), table, access, io).unwrap();
+        let pager = Pager::with_io(open(&path, access.source_kind()).unwrap(), table, access, io).unwrap();
         let pool = pager.pool().unwrap();
         pool.hold(true);
         // 0, 2, 3 in one request (1 read between them and dropped); 9 alone.

@@ -27,13 +27,11 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use serde::Serialize;
-
+pub use super::source::RemoteStats;
+/// The cache's granule: pages of this many bytes, fetched and kept whole.
+pub use super::source::PAGE_BYTES;
 use super::source::{check_range, Source, SourceKind};
 use crate::error::{Error, IoContext, Result};
-
-/// The cache's granule: pages of this many bytes, fetched and kept whole.
-pub const PAGE_BYTES: u64 = 4096;
 
 /// Whether `path` names a remote file (`http://`, `https://` or `s3://`).
 pub fn is_remote(path: &Path) -> bool {
@@ -229,19 +227,6 @@ pub fn default_cache_dir() -> Option<PathBuf> {
         return Some(PathBuf::from(d).join("relief"));
     }
     std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache/relief"))
-}
-
-/// What a remote file has cost so far.
-#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq, Eq)]
-pub struct RemoteStats {
-    /// Requests answered (retries included).
-    pub requests: u64,
-    /// Body bytes received.
-    pub bytes: u64,
-    /// Requests that failed and were retried.
-    pub retries: u64,
-    /// Pages read from the local cache instead of the network.
-    pub cache_hit_pages: u64,
 }
 
 #[derive(Default)]
@@ -653,8 +638,16 @@ impl Source for RemoteFile {
         Ok(())
     }
 
-    fn remote(&self) -> Option<&RemoteFile> {
-        Some(self)
+    fn resident_pages(&self, first: u64, end: u64) -> Result<Vec<bool>> {
+        self.cache.present(first, end)
+    }
+
+    fn read_page_runs(&self, runs: &[(u64, u64)], got: &mut dyn FnMut(u64, &[u8]) -> Result<()>) -> Result<()> {
+        self.fetch_runs(runs, got)
+    }
+
+    fn network(&self) -> Option<RemoteStats> {
+        Some(self.stats())
     }
 
     /// Drops nothing: the local cache is what makes a remote file cheap to read again.

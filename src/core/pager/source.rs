@@ -1,10 +1,16 @@
 //! Where a file's bytes come from: a [`Source`] is a read-only file of known length that can be
-//! read at any offset. Two kinds: [`MappedFile`] (a memory map; the OS pages the file in, and
-//! readers may borrow the bytes in place) and [`ReadFile`] (positioned reads, `pread`). Every
-//! relief file is opened through [`open`], so this is also the one place relief maps a file:
-//! terrain, VDT, meta-node and page files all go through [`MappedFile::open`], and the safety
-//! argument is made once (a terrain file stored with pages left out is mapped again, run by run,
-//! by [`super::sparse`], under the same argument).
+//! read at any offset. Two local kinds live here: [`MappedFile`] (a memory map; the OS pages the
+//! file in, and readers may borrow the bytes in place) and [`ReadFile`] (positioned reads,
+//! `pread`); a remote file ([`super::remote`]), a file stored with pages left out
+//! ([`super::sparse`]) and a file on an emulated device build on the same trait. Every relief
+//! file is opened through [`super::open`], and this is the one place relief maps a file it reads:
+//! terrain, VDT, meta-node and page files all go through [`MappedFile::open`], and a terrain file
+//! stored with pages left out is mapped again, run by run, by [`RunMap`], under the same argument.
+//!
+//! The trait says what a source can do, never what it is: whether a page can be read without
+//! waiting on a network ([`Source::resident_pages`]), batched page reads
+//! ([`Source::read_page_runs`]), what the network or the device under it has cost. The pager asks
+//! these; nothing above it looks beneath a source.
 
 use std::fs::File;
 use std::os::fd::AsRawFd;
@@ -12,9 +18,14 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 use memmap2::Mmap;
+use serde::Serialize;
 
-use super::device::{DeviceMount, DeviceSpec};
+use super::device::{DeviceSpec, DeviceStats};
 use crate::error::{Error, IoContext, Result};
+
+/// The page every source is read in: 4 KiB, the OS page and the unit of relief's files, of a
+/// remote file's cache and of a sparse file's page map.
+pub const PAGE_BYTES: u64 = 4096;
 
 /// The most bytes relief maps at once: 128 TiB, the user address space of x86-64 and AArch64
 /// with 48-bit virtual addresses. Terrain files are mapped whole, and a conversion maps its
@@ -53,97 +64,60 @@ pub trait Source: Send + Sync {
     /// Drops the file's pages from the OS page cache (a mapping's resident pages first), so the
     /// next reads come from storage.
     fn evict(&self) -> Result<()>;
-    /// The remote file behind this source, where it is one.
-    fn remote(&self) -> Option<&super::remote::RemoteFile> {
-        None
+    /// Which of pages `first..end` ([`PAGE_BYTES`] each) a read gets without waiting on a
+    /// network: every page of a local file; a remote file's pages in its local cache.
+    fn resident_pages(&self, first: u64, end: u64) -> Result<Vec<bool>> {
+        Ok(vec![true; end.saturating_sub(first) as usize])
     }
-    /// The emulated device this source reads through, where it has one.
-    fn device(&self) -> Option<&DeviceMount> {
-        None
-    }
-    /// The open local file underneath, where there is one (to map it again, see
-    /// [`super::sparse`]).
-    fn file(&self) -> Option<&File> {
-        None
-    }
-    /// Where the source's logical bytes are stored with pages left out, their map.
-    fn page_map(&self) -> Option<&super::sparse::PageMap> {
-        None
-    }
-}
-
-/// A source reading a device's served copy of a file (see [`open_on`]).
-struct OnDevice {
-    // Declared first, so dropped first: the served file is closed (and unmapped) before the
-    // device's file system is unmounted.
-    inner: Box<dyn Source>,
-    mount: DeviceMount,
-}
-
-impl Source for OnDevice {
-    fn path(&self) -> &Path {
-        self.inner.path()
-    }
-    fn len(&self) -> u64 {
-        self.inner.len()
-    }
-    fn kind(&self) -> SourceKind {
-        self.inner.kind()
-    }
-    fn read_at(&self, offset: u64, buf: &mut [u8]) -> Result<()> {
-        self.inner.read_at(offset, buf)
-    }
-    fn mapped(&self) -> Option<&[u8]> {
-        self.inner.mapped()
-    }
-    fn advise_random(&self) -> Result<()> {
-        self.inner.advise_random()
-    }
-    fn evict(&self) -> Result<()> {
-        self.inner.evict()
-    }
-    fn device(&self) -> Option<&DeviceMount> {
-        Some(&self.mount)
-    }
-    fn file(&self) -> Option<&File> {
-        self.inner.file()
-    }
-}
-
-/// Opens `path` as a source of the given kind. A remote location (`http(s)://`, `s3://`, see
-/// [`super::remote`]) is read with range requests through its local cache, whatever the kind.
-pub fn open(path: &Path, kind: SourceKind) -> Result<std::sync::Arc<dyn Source>> {
-    open_on(path, kind, None)
-}
-
-/// [`open`], a local file served through an emulated device when `device` is given (see
-/// [`super::device`]): mapped or read as asked, from the device's served copy.
-pub fn open_on(path: &Path, kind: SourceKind, device: Option<DeviceSpec>) -> Result<std::sync::Arc<dyn Source>> {
-    if let Some(spec) = device {
-        if super::remote::is_remote(path) {
-            return Err(Error::InvalidArgument(format!(
-                "{}: an emulated device is for local files (a remote one has its own latency)",
-                path.display()
-            )));
+    /// Reads the pages of `runs` (`[p, q)` page numbers, ascending, within the file; the last page
+    /// may be short at the file's end), calling `got(page, bytes)` for runs of consecutive whole
+    /// pages, in no particular order, with every page asked for at least once (a source may hand
+    /// over pages around them too). One positioned read per run here; a remote file fetches its
+    /// missing pages in coalesced range requests, several in flight.
+    fn read_page_runs(&self, runs: &[(u64, u64)], got: &mut dyn FnMut(u64, &[u8]) -> Result<()>) -> Result<()> {
+        let mut buf = Vec::new();
+        for &(p, q) in runs {
+            let (start, end) = (p.saturating_mul(PAGE_BYTES), q.saturating_mul(PAGE_BYTES).min(self.len()));
+            if start >= end {
+                continue;
+            }
+            buf.resize((end - start) as usize, 0);
+            self.read_at(start, &mut buf)?;
+            got(p, &buf)?;
         }
-        let mount = DeviceMount::new(path, spec)?;
-        let inner: Box<dyn Source> = match kind {
-            SourceKind::Map => Box::new(MappedFile::open_as(mount.path(), path)?),
-            SourceKind::Read => Box::new(ReadFile::open_as(mount.path(), path)?),
-        };
-        return Ok(std::sync::Arc::new(OnDevice { inner, mount }));
+        Ok(())
     }
-    if super::remote::is_remote(path) {
-        let location = path.to_string_lossy();
-        return Ok(std::sync::Arc::new(super::remote::RemoteFile::open(
-            &location,
-            super::remote::RemoteOptions::from_env()?,
-        )?));
+    /// What reading this source has cost over a network, where it reads over one.
+    fn network(&self) -> Option<RemoteStats> {
+        None
     }
-    Ok(match kind {
-        SourceKind::Map => std::sync::Arc::new(MappedFile::open(path)?),
-        SourceKind::Read => std::sync::Arc::new(ReadFile::open(path)?),
-    })
+    /// What the emulated device under this source has served, where it is on one.
+    fn device_stats(&self) -> Option<DeviceStats> {
+        None
+    }
+    /// The emulated device under this source, where it is on one.
+    fn device_spec(&self) -> Option<DeviceSpec> {
+        None
+    }
+    /// The file mapped again as a logical region of `logical_len` bytes: zero pages, with each run
+    /// `(logical page, physical page, pages)` of this file mapped over them at its place (see
+    /// [`super::sparse`]). `None` where the source is not a local map.
+    fn map_runs(&self, _runs: &[(u64, u64, u64)], _logical_len: u64) -> Result<Option<RunMap>> {
+        Ok(None)
+    }
+}
+
+/// What a source read over a network has cost so far.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq, Eq)]
+pub struct RemoteStats {
+    /// Requests answered (retries included).
+    pub requests: u64,
+    /// Body bytes received.
+    pub bytes: u64,
+    /// Requests that failed and were retried.
+    pub retries: u64,
+    /// Pages read from the local cache instead of the network.
+    pub cache_hit_pages: u64,
 }
 
 fn fadvise(path: &Path, file: &File, advice: libc::c_int) -> Result<()> {
@@ -156,7 +130,7 @@ fn fadvise(path: &Path, file: &File, advice: libc::c_int) -> Result<()> {
 }
 
 /// A read of `bytes` at `offset` must lie within a file of `len` bytes: else an error naming it.
-pub(super) fn check_range(path: &Path, len: u64, offset: u64, bytes: usize) -> Result<()> {
+pub(crate) fn check_range(path: &Path, len: u64, offset: u64, bytes: usize) -> Result<()> {
     match offset.checked_add(bytes as u64) {
         Some(end) if end <= len => Ok(()),
         _ => Err(Error::Truncated { path: path.into(), expected: offset.saturating_add(bytes as u64), found: len }),
@@ -243,8 +217,102 @@ impl Source for MappedFile {
         fadvise(&self.path, &self.file, libc::POSIX_FADV_DONTNEED)
     }
 
-    fn file(&self) -> Option<&File> {
-        Some(&self.file)
+    fn map_runs(&self, runs: &[(u64, u64, u64)], logical_len: u64) -> Result<Option<RunMap>> {
+        RunMap::new(&self.path, &self.file, runs, logical_len, self.len()).map(Some)
+    }
+}
+
+/// A logical region mapped over anonymous zero pages, with runs of a file mapped over them (a
+/// file stored with pages left out, [`super::sparse`]).
+pub struct RunMap {
+    addr: *mut libc::c_void,
+    len: usize,
+}
+
+// SAFETY: the region is read-only for its whole life and owned by this value; only `Drop`
+// unmaps it, so sharing the address between threads shares only reads.
+unsafe impl Send for RunMap {}
+// SAFETY: as for `Send`: every access through `&RunMap` is a read of a read-only mapping.
+unsafe impl Sync for RunMap {}
+
+impl RunMap {
+    /// Reserves `logical_len` bytes of zero pages and maps every run of `file` (`physical_len`
+    /// bytes long) over them.
+    ///
+    /// # Safety (why the `unsafe` inside is sound)
+    /// The reservation is a fresh private anonymous mapping of this process, and every run is
+    /// mapped with `MAP_FIXED` strictly inside it (runs past the logical length are refused here),
+    /// so no other mapping is replaced. Everything is read-only, and the file mappings carry the
+    /// same argument as [`MappedFile::open`]: relief never writes its files in place, and a
+    /// truncation by another process is reported as SIGBUS with the path.
+    fn new(path: &Path, file: &File, runs: &[(u64, u64, u64)], logical_len: u64, physical_len: u64) -> Result<RunMap> {
+        let len = logical_len.max(1) as usize;
+        let reserved = (len as u64).div_ceil(PAGE_BYTES) * PAGE_BYTES;
+        if runs.iter().any(|&(l, _, n)| l.saturating_add(n).saturating_mul(PAGE_BYTES) > reserved) {
+            return Err(Error::InvalidArgument(format!("{}: a stored run lies past the logical file", path.display())));
+        }
+        // SAFETY: see above; a fresh anonymous region.
+        let addr = unsafe {
+            libc::mmap(
+                std::ptr::null_mut(),
+                len,
+                libc::PROT_READ,
+                libc::MAP_PRIVATE | libc::MAP_ANONYMOUS | libc::MAP_NORESERVE,
+                -1,
+                0,
+            )
+        };
+        if addr == libc::MAP_FAILED {
+            return Err(Error::io(path, std::io::Error::last_os_error()));
+        }
+        let region = RunMap { addr, len };
+        for &(l, p, n) in runs {
+            let (at, from) = (l * PAGE_BYTES, p * PAGE_BYTES);
+            // The last run may end in a partial page of the file.
+            let bytes = (n * PAGE_BYTES).min(physical_len.saturating_sub(from));
+            if bytes == 0 {
+                continue;
+            }
+            // SAFETY: inside the reservation (see above).
+            let got = unsafe {
+                libc::mmap(
+                    region.addr.cast::<u8>().add(at as usize).cast(),
+                    bytes as usize,
+                    libc::PROT_READ,
+                    libc::MAP_SHARED | libc::MAP_FIXED,
+                    file.as_raw_fd(),
+                    from as libc::off_t,
+                )
+            };
+            if got == libc::MAP_FAILED {
+                let e = std::io::Error::last_os_error();
+                return Err(Error::io(path, std::io::Error::new(e.kind(), format!("mapping a stored run: {e}"))));
+            }
+        }
+        Ok(region)
+    }
+
+    /// The logical bytes.
+    pub fn bytes(&self) -> &[u8] {
+        // SAFETY: a readable mapping of `len` bytes that lives as long as `self`.
+        unsafe { std::slice::from_raw_parts(self.addr.cast::<u8>(), self.len) }
+    }
+
+    /// `madvise` over the whole region (`MADV_RANDOM`, `MADV_DONTNEED`).
+    pub fn advise(&self, advice: libc::c_int, path: &Path) -> Result<()> {
+        // SAFETY: advice on our own mapping; DONTNEED on a read-only shared file mapping or on
+        // anonymous zero pages changes nothing that is read (they read back the same).
+        if unsafe { libc::madvise(self.addr, self.len, advice) } != 0 {
+            return Err(Error::io(path, std::io::Error::last_os_error()));
+        }
+        Ok(())
+    }
+}
+
+impl Drop for RunMap {
+    fn drop(&mut self) {
+        // SAFETY: the region was mapped by `new` and is unmapped once, here.
+        unsafe { libc::munmap(self.addr, self.len) };
     }
 }
 
@@ -293,10 +361,6 @@ impl Source for ReadFile {
     fn evict(&self) -> Result<()> {
         fadvise(&self.path, &self.file, libc::POSIX_FADV_DONTNEED)
     }
-
-    fn file(&self) -> Option<&File> {
-        Some(&self.file)
-    }
 }
 
 #[cfg(test)]
@@ -310,7 +374,7 @@ mod tests {
         let bytes: Vec<u8> = (0..10_000u32).map(|i| (i * 7 % 251) as u8).collect();
         std::fs::write(&path, &bytes).unwrap();
         for kind in [SourceKind::Map, SourceKind::Read] {
-            let s = open(&path, kind).unwrap();
+            let s = super::super::open(&path, kind).unwrap();
             assert_eq!((s.len(), s.kind()), (10_000, kind));
             let mut buf = [0u8; 100];
             s.read_at(4090, &mut buf).unwrap();
@@ -325,7 +389,7 @@ mod tests {
         }
         let missing = dir.path().join("missing.bin");
         for kind in [SourceKind::Map, SourceKind::Read] {
-            let e = open(&missing, kind).err().unwrap().to_string();
+            let e = super::super::open(&missing, kind).err().unwrap().to_string();
             assert!(e.starts_with(&missing.display().to_string()), "{e}");
         }
     }

@@ -8,16 +8,13 @@
 //! stored run mapped over them from the file at its place (one mapping per run). Read, a positioned
 //! read is split at the runs, and the gaps are zero-filled without I/O.
 
-use std::fs::File;
-use std::os::fd::AsRawFd;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use super::device::DeviceMount;
-use super::source::{check_range, Source, SourceKind};
+use super::device::{DeviceSpec, DeviceStats};
+pub use super::source::PAGE_BYTES;
+use super::source::{check_range, RemoteStats, RunMap, Source, SourceKind};
 use crate::error::{Error, Result};
-
-pub const PAGE_BYTES: u64 = 4096;
 
 /// The most runs a mapped sparse file may have: each is a mapping of its own, and Linux allows a
 /// process 65,530 by default (`vm.max_map_count`).
@@ -118,96 +115,12 @@ impl PageMap {
     }
 }
 
-/// A logical region mapped over anonymous zero pages.
-struct VirtualMap {
-    addr: *mut libc::c_void,
-    len: usize,
-}
-
-// SAFETY: the region is read-only for its whole life; only `Drop` unmaps it.
-unsafe impl Send for VirtualMap {}
-unsafe impl Sync for VirtualMap {}
-
-impl VirtualMap {
-    /// Reserves `len` bytes of zero pages and maps every run of `map` from `file` over them.
-    ///
-    /// # Safety (why the `unsafe` inside is sound)
-    /// The reservation is a fresh private anonymous mapping of this process, and every run is
-    /// mapped with `MAP_FIXED` strictly inside it (the runs lie within the logical length, checked
-    /// by [`PageMap::new`]), so no other mapping is replaced. Everything is read-only, and the file
-    /// mappings carry the same argument as [`super::source::MappedFile::open`]: relief never writes
-    /// its files in place, and a truncation by another process is reported as SIGBUS with the path.
-    fn new(path: &Path, file: &File, map: &PageMap, physical_len: u64) -> Result<VirtualMap> {
-        let len = map.logical_len.max(1) as usize;
-        // SAFETY: see above; a fresh anonymous region.
-        let addr = unsafe {
-            libc::mmap(
-                std::ptr::null_mut(),
-                len,
-                libc::PROT_READ,
-                libc::MAP_PRIVATE | libc::MAP_ANONYMOUS | libc::MAP_NORESERVE,
-                -1,
-                0,
-            )
-        };
-        if addr == libc::MAP_FAILED {
-            return Err(Error::io(path, std::io::Error::last_os_error()));
-        }
-        let region = VirtualMap { addr, len };
-        for &(l, p, n) in &map.runs {
-            let (at, from) = (l * PAGE_BYTES, p * PAGE_BYTES);
-            // The last run may end in a partial page of the file.
-            let bytes = (n * PAGE_BYTES).min(physical_len.saturating_sub(from));
-            if bytes == 0 {
-                continue;
-            }
-            // SAFETY: inside the reservation (see above).
-            let got = unsafe {
-                libc::mmap(
-                    region.addr.cast::<u8>().add(at as usize).cast(),
-                    bytes as usize,
-                    libc::PROT_READ,
-                    libc::MAP_SHARED | libc::MAP_FIXED,
-                    file.as_raw_fd(),
-                    from as libc::off_t,
-                )
-            };
-            if got == libc::MAP_FAILED {
-                let e = std::io::Error::last_os_error();
-                return Err(Error::io(path, std::io::Error::new(e.kind(), format!("mapping a stored run: {e}"))));
-            }
-        }
-        Ok(region)
-    }
-
-    fn bytes(&self) -> &[u8] {
-        // SAFETY: a readable mapping of `len` bytes that lives as long as `self`.
-        unsafe { std::slice::from_raw_parts(self.addr.cast::<u8>(), self.len) }
-    }
-
-    fn advise(&self, advice: libc::c_int, path: &Path) -> Result<()> {
-        // SAFETY: advice on our own mapping; DONTNEED on a read-only shared file mapping or on
-        // anonymous zero pages changes nothing that is read (they read back the same).
-        if unsafe { libc::madvise(self.addr, self.len, advice) } != 0 {
-            return Err(Error::io(path, std::io::Error::last_os_error()));
-        }
-        Ok(())
-    }
-}
-
-impl Drop for VirtualMap {
-    fn drop(&mut self) {
-        // SAFETY: the region was mapped by `new` and is unmapped once, here.
-        unsafe { libc::munmap(self.addr, self.len) };
-    }
-}
-
 /// The logical bytes of a file stored with pages left out (see the module's note).
 pub struct SparseFile {
     path: PathBuf,
     inner: Arc<dyn Source>,
     map: PageMap,
-    mapped: Option<VirtualMap>,
+    mapped: Option<RunMap>,
 }
 
 impl SparseFile {
@@ -221,8 +134,8 @@ impl SparseFile {
                 return Err(Error::Truncated { path, expected: need, found: inner.len() });
             }
         }
-        let mapped = match (inner.kind(), inner.file()) {
-            (SourceKind::Map, Some(file)) => {
+        let mapped = match inner.kind() {
+            SourceKind::Map => {
                 if map.runs.len() > MAX_MAPPED_RUNS {
                     return Err(Error::InvalidArgument(format!(
                         "{}: {} stored runs are more than {MAX_MAPPED_RUNS} mappings; read it with --access read or pool",
@@ -230,9 +143,9 @@ impl SparseFile {
                         map.runs.len()
                     )));
                 }
-                Some(VirtualMap::new(&path, file, &map, inner.len())?)
+                inner.map_runs(&map.runs, map.logical_len)?
             }
-            _ => None,
+            SourceKind::Read => None,
         };
         Ok(SparseFile { path, inner, map, mapped })
     }
@@ -289,20 +202,73 @@ impl Source for SparseFile {
         self.inner.evict()
     }
 
-    fn remote(&self) -> Option<&super::remote::RemoteFile> {
-        self.inner.remote()
+    /// Pages left out read as zeros without I/O, so they are resident; a stored page is where
+    /// its physical page is.
+    fn resident_pages(&self, first: u64, end: u64) -> Result<Vec<bool>> {
+        let physical = self.inner.resident_pages(0, self.inner.len().div_ceil(PAGE_BYTES))?;
+        Ok((first..end)
+            .map(|p| self.map.physical(p).is_none_or(|q| physical.get(q as usize).copied().unwrap_or(false)))
+            .collect())
     }
 
-    fn device(&self) -> Option<&DeviceMount> {
-        self.inner.device()
+    /// The stored pages of `runs` are read from the physical file in one call (so a remote file
+    /// coalesces them as it would any runs); pages left out are handed over as zeros.
+    fn read_page_runs(&self, runs: &[(u64, u64)], got: &mut dyn FnMut(u64, &[u8]) -> Result<()>) -> Result<()> {
+        let end_page = self.len().div_ceil(PAGE_BYTES);
+        let mut zeros: Vec<u8> = Vec::new();
+        for &(p, q) in runs {
+            let mut page = p;
+            while page < q.min(end_page) {
+                if self.map.physical(page).is_some() {
+                    page += 1;
+                    continue;
+                }
+                let mut gap_end = page + 1;
+                while gap_end < q.min(end_page) && self.map.physical(gap_end).is_none() {
+                    gap_end += 1;
+                }
+                let bytes = (gap_end * PAGE_BYTES).min(self.len()) - page * PAGE_BYTES;
+                zeros.resize(bytes as usize, 0);
+                got(page, &zeros)?;
+                page = gap_end;
+            }
+        }
+        let map = &self.map;
+        self.inner.read_page_runs(&map.physical_runs(runs), &mut |page, bytes| {
+            // A physical run may cross from one stored run to the next: split where the logical
+            // pages stop being consecutive.
+            let (mut page, mut bytes) = (page, bytes);
+            while !bytes.is_empty() {
+                let Some(logical) = map.logical(page) else {
+                    // Not a stored page of the logical file (the page map's own pages).
+                    let skip = (PAGE_BYTES as usize).min(bytes.len());
+                    (page, bytes) = (page + 1, &bytes[skip..]);
+                    continue;
+                };
+                let mut pages = 1;
+                while (pages as usize) * (PAGE_BYTES as usize) < bytes.len()
+                    && map.logical(page + pages) == Some(logical + pages)
+                {
+                    pages += 1;
+                }
+                let take = ((pages * PAGE_BYTES) as usize).min(bytes.len());
+                got(logical, &bytes[..take])?;
+                (page, bytes) = (page + pages, &bytes[take..]);
+            }
+            Ok(())
+        })
     }
 
-    fn file(&self) -> Option<&File> {
-        self.inner.file()
+    fn network(&self) -> Option<RemoteStats> {
+        self.inner.network()
     }
 
-    fn page_map(&self) -> Option<&PageMap> {
-        Some(&self.map)
+    fn device_stats(&self) -> Option<DeviceStats> {
+        self.inner.device_stats()
+    }
+
+    fn device_spec(&self) -> Option<DeviceSpec> {
+        self.inner.device_spec()
     }
 }
 
@@ -341,7 +307,7 @@ mod tests {
         assert_eq!((map.physical(4), map.physical(5), map.logical(3)), (Some(2), None, Some(10)));
         assert_eq!(map.physical_runs(&[(2, 6), (9, 11)]), vec![(1, 4)]);
         for kind in [SourceKind::Map, SourceKind::Read] {
-            let inner = super::super::source::open(&path, kind).unwrap();
+            let inner = super::super::open(&path, kind).unwrap();
             let s = SparseFile::new(inner, map.clone()).unwrap();
             assert_eq!(s.len(), logical_len);
             assert_eq!(s.mapped().is_some(), kind == SourceKind::Map);
@@ -366,7 +332,7 @@ mod tests {
         assert!(PageMap::new(vec![(0, 0, 2), (1, 2, 1)], logical_len).is_none());
         assert!(PageMap::new(vec![(0, 0, 12)], logical_len).is_none());
         let short = PageMap::new(vec![(0, 0, 1), (5, 9, 1)], logical_len).unwrap();
-        let inner = super::super::source::open(&path, SourceKind::Read).unwrap();
+        let inner = super::super::open(&path, SourceKind::Read).unwrap();
         assert!(SparseFile::new(inner, short).err().unwrap().to_string().contains("truncated"));
     }
 }

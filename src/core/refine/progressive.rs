@@ -15,15 +15,15 @@
 //! their blocks and, as look-ahead, for the blocks of their DAG descendants a few levels down and
 //! of those descendants' other parents (what the next frames would miss once the block arrives: a
 //! child's error and radius are bounded by the parent's, so an active parent's subtree is where
-//! refinement goes), coalesced into range requests by [`RemoteFile::fetch_runs`]. A record that
+//! refinement goes), read together by [`Pager::read_blocks`] (for a remote file: coalesced range
+//! requests, several in flight; through the pager, so its observer and read counts see them, and a
+//! file stored with pages left out is translated where every other read is). A record that
 //! is fetched but not effective sends its missing ancestors instead. A wanted block is not asked
 //! for again until it arrives.
 //!
 //! Each arrival carries its causal round: one more than the round of the data of the frame that
 //! asked for it (the opening request is round 1). A frame's round is the newest it has absorbed,
 //! so the round of the first complete frame is the number of sequential round trips it waited for.
-
-use std::collections::BTreeMap;
 
 use rustc_hash::FxHashSet;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -34,11 +34,11 @@ use std::time::Duration;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::format::terrain::{Header, Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
+use crate::format::terrain::{Record, TerrainFile, RECORDS_PER_BLOCK, RECORD_BYTES};
 use crate::layout::hierarchy::{Grid, VertexKind};
 use crate::layout::{AnyLayout, Layout, LayoutVisitor};
-use crate::pager::remote::{RemoteFile, PAGE_BYTES};
-use crate::pager::sparse::PageMap;
+#[cfg(doc)]
+use crate::pager::Pager;
 use crate::refine::records::RecordSource;
 use crate::refine::{Morph, RefineOptions, Refiner, Strip};
 
@@ -280,12 +280,12 @@ impl Progressive {
     /// Starts on `terrain` (remote) with the blocks its cache already holds (the opening range,
     /// and what earlier runs fetched), and a fetcher thread.
     pub fn new(terrain: Arc<TerrainFile>, options: ProgressiveOptions) -> Result<Progressive> {
-        let Some(remote) = terrain.remote() else {
+        if !terrain.is_remote() {
             return Err(Error::InvalidArgument(format!(
                 "{}: progressive refinement needs a remote terrain",
                 terrain.path().display()
             )));
-        };
+        }
         let h = terrain.header();
         let n_blocks = h.payload_bytes.div_ceil(BLOCK_BYTES);
         let mut p = Progressive {
@@ -300,19 +300,22 @@ impl Progressive {
             outstanding: 0,
             terrain: terrain.clone(),
         };
-        // Blocks wholly in the cache are resident from the start.
-        let first_page = h.payload_offset / PAGE_BYTES;
-        let end_page = (h.payload_offset + h.payload_bytes).div_ceil(PAGE_BYTES);
-        let map = terrain.page_map();
-        let present = present_pages(remote, map, first_page, end_page)?;
-        let mut have = Vec::new();
-        for b in 0..n_blocks {
-            let (start, end) = block_range(h, b);
-            let pages = (start / PAGE_BYTES - first_page) as usize..(end.div_ceil(PAGE_BYTES) - first_page) as usize;
-            if present[pages].iter().all(|&x| x) {
-                have.push((b, decode(&cached_bytes(remote, map, start, end)?)));
-            }
-        }
+        // Blocks the pager has without the network (the opening range, and what earlier runs
+        // fetched into the cache) are here from the start.
+        let pager = terrain.pager();
+        let resident: Vec<u32> = pager
+            .resident_blocks()?
+            .iter()
+            .enumerate()
+            .filter(|&(_, &here)| here)
+            .map(|(b, _)| b as u32)
+            .take(n_blocks as usize)
+            .collect();
+        let mut have = Vec::with_capacity(resident.len());
+        pager.read_blocks(&resident, |b, bytes| {
+            have.push((b as u64, decode(bytes)));
+            Ok(())
+        })?;
         let mut settle = Settle::new(terrain.layout().clone(), n_blocks as usize);
         let counts: Vec<(u64, u64)> = have.iter().map(|(b, records)| (*b, records.len() as u64)).collect();
         let effective = settle.add(&counts);
@@ -482,69 +485,6 @@ impl Drop for Progressive {
     }
 }
 
-/// Bytes `[start, end)` of record block `b` in a terrain file with header `h`.
-fn block_range(h: &Header, b: u64) -> (u64, u64) {
-    let start = h.payload_offset + b * BLOCK_BYTES;
-    (start, (start + BLOCK_BYTES).min(h.payload_offset + h.payload_bytes))
-}
-
-/// Whether logical pages `first..end` of the terrain file are in the remote's cache; where the file
-/// leaves pages out (`map`), those read as zeros and count as present.
-fn present_pages(remote: &RemoteFile, map: Option<&PageMap>, first: u64, end: u64) -> Result<Vec<bool>> {
-    let Some(map) = map else { return remote.cache().present(first, end) };
-    let physical = remote.cache().present(0, crate::pager::source::Source::len(remote).div_ceil(PAGE_BYTES))?;
-    Ok((first..end)
-        .map(|p| map.physical(p).is_none_or(|q| physical.get(q as usize).copied().unwrap_or(false)))
-        .collect())
-}
-
-/// Logical bytes `start..end` from the remote's cache (pages present), zeros where left out.
-fn cached_bytes(remote: &RemoteFile, map: Option<&PageMap>, start: u64, end: u64) -> Result<Vec<u8>> {
-    let Some(map) = map else { return remote.cache().get(start, end) };
-    let mut out = vec![0u8; (end - start) as usize];
-    for (at, bytes, from) in map.pieces(start, end - start) {
-        if let Some(from) = from {
-            let got = remote.cache().get(from, from + bytes)?;
-            out[(at - start) as usize..(at - start + bytes) as usize].copy_from_slice(&got);
-        }
-    }
-    Ok(out)
-}
-
-/// [`RemoteFile::fetch_runs`] of logical page runs: the stored pages are fetched, and `got` is
-/// called with logical pages (pages left out are zeros, which the caller's buffers already hold).
-fn fetch_logical(
-    remote: &RemoteFile,
-    map: Option<&PageMap>,
-    runs: &[(u64, u64)],
-    mut got: impl FnMut(u64, &[u8]) -> Result<()>,
-) -> Result<()> {
-    let Some(map) = map else { return remote.fetch_runs(runs, got) };
-    remote.fetch_runs(&map.physical_runs(runs), |page, bytes| {
-        // A physical run may cross from one stored run to the next: split where the logical
-        // pages stop being consecutive.
-        let (mut page, mut bytes) = (page, bytes);
-        while !bytes.is_empty() {
-            let Some(logical) = map.logical(page) else {
-                // The page map's own pages: not part of the file as read.
-                let skip = (PAGE_BYTES as usize).min(bytes.len());
-                (page, bytes) = (page + 1, &bytes[skip..]);
-                continue;
-            };
-            let mut pages = 1;
-            while (pages as usize) * (PAGE_BYTES as usize) < bytes.len()
-                && map.logical(page + pages) == Some(logical + pages)
-            {
-                pages += 1;
-            }
-            let take = ((pages * PAGE_BYTES) as usize).min(bytes.len());
-            got(logical, &bytes[..take])?;
-            (page, bytes) = (page + pages, &bytes[take..]);
-        }
-        Ok(())
-    })
-}
-
 /// Records from their file bytes (a whole number of records).
 fn decode(bytes: &[u8]) -> Box<[Record]> {
     bytes.chunks_exact(RECORD_BYTES as usize).map(bytemuck::pod_read_unaligned::<Record>).collect()
@@ -560,9 +500,7 @@ fn fetcher(
     plans: Receiver<Plan>,
     arrivals: Sender<Arrival>,
 ) {
-    let Some(remote) = terrain.remote() else { return };
     let layout = terrain.layout().clone();
-    let h = terrain.header().clone();
     while let Ok(first) = plans.recv() {
         // Plans queued behind a fetch are served together: one round of requests.
         let mut plan_count = 1u64;
@@ -588,41 +526,17 @@ fn fetcher(
             layout.visit(Go { asked: &mut asked, misses: &misses, lookahead: options.lookahead_levels })
         };
         // Decoded here, so that the refining thread only takes the blocks over.
-        let mut staged: BTreeMap<u64, Box<[Record]>> = BTreeMap::new();
-        let mut runs: Vec<(u64, u64)> = Vec::new();
-        for &b in &wanted {
-            let (start, end) = block_range(&h, b);
-            staged
-                .insert(b, vec![Record::default(); ((end - start) / RECORD_BYTES as u64) as usize].into_boxed_slice());
-            let (p, q) = (start / PAGE_BYTES, end.div_ceil(PAGE_BYTES));
-            match runs.last_mut() {
-                Some(last) if last.1 >= p => last.1 = last.1.max(q),
-                _ => runs.push((p, q)),
-            }
-        }
-        let result = fetch_logical(remote, terrain.page_map(), &runs, |page, bytes| {
-            let (lo, hi) = (page * PAGE_BYTES, page * PAGE_BYTES + bytes.len() as u64);
-            let first_block = lo.saturating_sub(h.payload_offset) / BLOCK_BYTES;
-            for (&b, records) in staged.range_mut(first_block..) {
-                let buf: &mut [u8] = bytemuck::cast_slice_mut(&mut records[..]);
-                let start = h.payload_offset + b * BLOCK_BYTES;
-                if start >= hi {
-                    break;
-                }
-                let end = start + buf.len() as u64;
-                let (s, e) = (start.max(lo), end.min(hi));
-                if s < e {
-                    buf[(s - start) as usize..(e - start) as usize]
-                        .copy_from_slice(&bytes[(s - lo) as usize..(e - lo) as usize]);
-                }
-            }
+        let ids: Vec<u32> = wanted.iter().filter_map(|&b| u32::try_from(b).ok()).collect();
+        let mut staged: Vec<(u64, Box<[Record]>)> = Vec::with_capacity(ids.len());
+        let result = terrain.pager().read_blocks(&ids, |b, bytes| {
+            staged.push((b as u64, decode(bytes)));
             Ok(())
         });
         let arrival = match result {
             Ok(()) => {
                 let counts: Vec<(u64, u64)> = staged.iter().map(|(b, records)| (*b, records.len() as u64)).collect();
                 let effective = settle.add(&counts);
-                Arrival::Blocks { round, blocks: staged.into_iter().collect(), effective }
+                Arrival::Blocks { round, blocks: staged, effective }
             }
             Err(e) => Arrival::Failed(e),
         };
