@@ -6,6 +6,9 @@
 
 pub use relief_core::*;
 
+pub mod app_error;
+pub use app_error::AppError;
+
 pub mod plot;
 pub mod render;
 pub mod window;

@@ -16,7 +16,7 @@ use std::sync::OnceLock;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
-use crate::{Error, Result};
+use crate::Result;
 
 /// The per-frame curve of one layout: `cumulative_faults[k]` is the number of page faults from
 /// frame 0 through frame `k` inclusive.
@@ -69,12 +69,12 @@ const FONT: &str = "sans-serif";
 /// Both y axes are logarithmic starting at 1; zero counts are drawn at 1. Each layout keeps its
 /// colour across figures and runs (see [`layout_colour`]).
 ///
-/// Errors: [`Error::Plot`] when there is nothing to draw (no per-frame series, a series without
+/// Errors: [`crate::AppError::Plot`] when there is nothing to draw (no per-frame series, a series without
 /// frames), for a non-finite or non-positive τ, or when drawing fails; [`Error::Io`] when the
 /// file cannot be written.
 pub fn write_layouts_figure(out: &Path, fig: &Figure) -> Result<()> {
     validate(out, fig)?;
-    register_font().map_err(|problem| Error::plot(out, problem))?;
+    register_font().map_err(|problem| crate::app_error::plot(out, problem))?;
 
     let taus = distinct_taus(fig.by_tolerance);
     let two_panels = taus.len() >= 2;
@@ -82,7 +82,7 @@ pub fn write_layouts_figure(out: &Path, fig: &Figure) -> Result<()> {
     let mut buf = vec![255u8; w as usize * h as usize * 3];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        let e = |err: &dyn std::fmt::Display| Error::plot(out, err.to_string());
+        let e = |err: &dyn std::fmt::Display| crate::app_error::plot(out, err.to_string());
         root.fill(&WHITE).map_err(|x| e(&x))?;
         let body =
             root.margin(8, 0, 0, 0).titled(fig.title, (FONT, 28).into_font().color(&BLACK)).map_err(|x| e(&x))?;
@@ -96,7 +96,7 @@ pub fn write_layouts_figure(out: &Path, fig: &Figure) -> Result<()> {
         root.present().map_err(|x| e(&x))?;
     }
     let image = image::RgbImage::from_raw(w, h, buf)
-        .ok_or_else(|| Error::plot(out, "the drawing buffer does not match the image size"))?;
+        .ok_or_else(|| crate::app_error::plot(out, "the drawing buffer does not match the image size"))?;
     crate::render::save_png(&image, out)
 }
 
@@ -137,17 +137,20 @@ pub fn layout_colour(label: &str) -> RGBColor {
 
 fn validate(out: &Path, fig: &Figure) -> Result<()> {
     if fig.frames.is_empty() {
-        return Err(Error::plot(out, "no per-frame series to plot (no layout was measured)"));
+        return Err(crate::app_error::plot(out, "no per-frame series to plot (no layout was measured)"));
     }
     if let Some(s) = fig.frames.iter().find(|s| s.cumulative_faults.is_empty()) {
-        return Err(Error::plot(out, format!("layout {:?} has no frames", s.label)));
+        return Err(crate::app_error::plot(out, format!("layout {:?} has no frames", s.label)));
     }
     if !(fig.frames_tolerance_px.is_finite() && fig.frames_tolerance_px > 0.0) {
-        return Err(Error::plot(out, format!("tolerance τ = {} px is not a positive number", fig.frames_tolerance_px)));
+        return Err(crate::app_error::plot(
+            out,
+            format!("tolerance τ = {} px is not a positive number", fig.frames_tolerance_px),
+        ));
     }
     for s in fig.by_tolerance {
         if let Some(&(tau, _)) = s.points.iter().find(|(tau, _)| !(tau.is_finite() && *tau > 0.0)) {
-            return Err(Error::plot(
+            return Err(crate::app_error::plot(
                 out,
                 format!("layout {:?}: tolerance τ = {tau} px is not a positive number", s.label),
             ));
@@ -479,7 +482,7 @@ mod tests {
         let out = dir.path().join("empty.png");
         let fig = Figure { title: "empty", frames: &[], by_tolerance: &[], frames_tolerance_px: 1.0 };
         let err = write_layouts_figure(&out, &fig).expect_err("nothing to draw");
-        assert!(matches!(err, Error::Plot { .. }), "{err}");
+        assert!(matches!(crate::AppError::of(&err), Some(crate::AppError::Plot { .. })), "{err}");
         assert!(err.to_string().contains("no per-frame series"), "{err}");
 
         let f = vec![FrameSeries { label: "hz".into(), cumulative_faults: vec![] }];
@@ -489,7 +492,7 @@ mod tests {
         let f = frames(3);
         let t = vec![ToleranceSeries { label: "hz".into(), points: vec![(0.0, 1), (1.0, 1)] }];
         let err = write_layouts_figure(&out, &Figure { frames: &f, by_tolerance: &t, ..fig }).expect_err("τ = 0");
-        assert!(matches!(err, Error::Plot { .. }), "{err}");
+        assert!(matches!(crate::AppError::of(&err), Some(crate::AppError::Plot { .. })), "{err}");
         assert!(!out.exists(), "nothing written on error");
     }
 

@@ -29,4 +29,12 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "$XDG_RUNTIME_DIR" ]; then
   export XDG_RUNTIME_DIR="$(mktemp -d)"
   chmod 700 "$XDG_RUNTIME_DIR"
 fi
+# The policy (ARCHITECTURE.md, "Policy"): formatting and lints, with the workspace's lint levels.
+for c in rustfmt clippy; do
+  { [ "$c" = rustfmt ] && cargo fmt --version >/dev/null 2>&1; } ||
+    { [ "$c" = clippy ] && cargo clippy --version >/dev/null 2>&1; } ||
+    rustup component add "$c"
+done
+cargo fmt --all --check
+cargo clippy --locked --workspace --all-targets --features gdal -- -D warnings
 cargo test --locked --workspace --all-targets --features gdal

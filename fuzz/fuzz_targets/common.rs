@@ -1,7 +1,7 @@
 //! Shared by the fuzz targets: the readers take paths, so each input is written to a file in a
 //! RAM-backed directory (/dev/shm where it exists) under the name the reader expects.
 
-#![allow(dead_code)]
+#![allow(dead_code, reason = "each user compiles its own subset of the helpers")]
 
 use std::path::PathBuf;
 
@@ -33,6 +33,7 @@ pub struct LimitedAlloc;
 
 pub const MAX_ALLOCATION: usize = 256 << 20;
 
+// SAFETY: every call is forwarded unchanged to the system allocator after a size check.
 unsafe impl std::alloc::GlobalAlloc for LimitedAlloc {
     unsafe fn alloc(&self, layout: std::alloc::Layout) -> *mut u8 {
         check(layout.size());

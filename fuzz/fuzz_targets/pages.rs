@@ -8,8 +8,8 @@ use libfuzzer_sys::fuzz_target;
 #[path = "common.rs"]
 mod common;
 
-use relief_core::flight::frame::FrameSource;
 use relief_core::diskpages::fetch::{FetchOptions, PageSource};
+use relief_core::flight::frame::FrameSource;
 use relief_core::format::pagefile::PageFile;
 
 fuzz_target!(|data: &[u8]| {

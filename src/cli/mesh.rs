@@ -21,7 +21,7 @@ use super::{
 };
 
 // One value, parsed once: the variants' size does not matter.
-#[allow(clippy::large_enum_variant)]
+#[allow(clippy::large_enum_variant, reason = "parsed once per run")]
 #[derive(Subcommand)]
 pub enum Command {
     /// Show a whole mesh (OFF, PLY, OBJ, optionally gzip'd; no simplification): in a window, or

@@ -15,7 +15,7 @@ use relief::pager::{Access, MemoryCap};
 use super::{check_output_file, fmt_bytes, parse_bytes, print_json, progress, AccessArgs, DeviceArgs, FlyArgs};
 
 // One value, parsed once: the variants' size does not matter.
-#[allow(clippy::large_enum_variant)]
+#[allow(clippy::large_enum_variant, reason = "parsed once per run")]
 #[derive(Subcommand)]
 pub enum Command {
     /// Write a mesh (OFF, PLY, OBJ, optionally gzip'd) or a terrain file (.relief, as the mesh of

@@ -5,8 +5,11 @@ use std::path::PathBuf;
 
 use serde::Serialize;
 
-/// Everything that can go wrong in relief's library code.
+/// Everything that can go wrong in relief's library code. Variants carry what a caller can act
+/// on (the file, the limit, the offset) and chain their causes (`#[source]`); more may come, so
+/// matches need a wildcard arm.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum Error {
     #[error("{}: {source}", path.display())]
     Io {
@@ -34,7 +37,7 @@ pub enum Error {
     Truncated { path: PathBuf, expected: u64, found: u64 },
     #[error("{}: grid too large: {width} x {height} needs more than 2^{max_n} + 1 posts per side", path.display())]
     GridTooLarge { path: PathBuf, width: u64, height: u64, max_n: u32 },
-    /// A grid whose terrain file or conversion scratch cannot be mapped (`mapped::MAX_MAPPED_BYTES`).
+    /// A grid whose terrain file or conversion scratch cannot be mapped (`pager::source::MAX_MAPPED_BYTES`).
     #[error("{}: a {side}² grid needs {} of {what}, more than the {} one process can map", path.display(), tib(*bytes), tib(*limit as u128))]
     TooLargeToMap { path: PathBuf, side: u64, what: &'static str, bytes: u128, limit: u64 },
     /// A flight-path file (`relief path`) that could not be parsed or holds an unusable frame.
@@ -49,24 +52,33 @@ pub enum Error {
     /// Scratch storage (the redb database of `metanode::build`) failed.
     #[error("{}: scratch database: {problem}", path.display())]
     Scratch { path: PathBuf, problem: String },
-    /// A page layout (`pages::two_factor`) that could not be computed.
+    /// A page layout (`diskpages::two_factor`) that could not be computed.
     #[error("page layout: {0}")]
     Layout(String),
     /// A remote file (HTTP range requests) that could not be read: the server's answer, a
     /// connection that kept failing after the retries, or a file that changed under us.
     #[error("{url}: {problem}")]
     Remote { url: String, problem: String },
+    /// A number outside what relief accepts: what it is, what is allowed, what was given.
+    #[error("{what} must be {allowed}, got {got}")]
+    OutOfRange { what: &'static str, allowed: String, got: String },
+    /// A thread relief needs could not be started (the OS refused: too many threads, no memory).
+    #[error("cannot start the {what} thread: {source}")]
+    Thread {
+        what: String,
+        #[source]
+        source: std::io::Error,
+    },
+    /// An invariant relief's own code keeps did not hold: a bug, to be reported with the input.
+    #[error("internal error in {stage}: {problem}")]
+    Internal { stage: &'static str, problem: String },
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
-    /// No usable GPU, or the GPU refused a request (creation, limits, readback).
-    #[error("GPU: {0}")]
-    Gpu(String),
-    /// No window can be opened here (no display); the message says how to fly headless.
-    #[error("{0}")]
-    NoDisplay(String),
-    /// A figure that cannot be drawn: nothing to plot, an unusable value, or a drawing failure.
-    #[error("{}: cannot draw the figure: {problem}", path.display())]
-    Plot { path: PathBuf, problem: String },
+    /// An error of code outside the core that runs inside its loops or beside them (a
+    /// renderer's `flight::frame::Presenter`, a window, a figure): its own error type, boxed.
+    /// relief's binary puts its GPU, display and figure errors here (`relief::AppError`).
+    #[error(transparent)]
+    External(Box<dyn std::error::Error + Send + Sync + 'static>),
     #[error("interrupted")]
     Interrupted,
     /// The buffer pool (`pool`) could not start its I/O thread, or a block loader panicked.
@@ -92,11 +104,6 @@ impl Error {
         Error::BadDem { path: path.into(), problem: problem.into() }
     }
 
-    /// A figure (`plot`) that cannot be drawn.
-    pub fn plot(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
-        Error::Plot { path: path.into(), problem: problem.into() }
-    }
-
     /// A remote file that could not be read.
     pub fn remote(url: &str, problem: impl Into<String>) -> Self {
         Error::Remote { url: url.into(), problem: problem.into() }
@@ -105,6 +112,17 @@ impl Error {
     /// A mesh file whose content is wrong.
     pub fn bad_mesh(path: impl Into<PathBuf>, problem: impl Into<String>) -> Self {
         Error::BadMesh { path: path.into(), problem: problem.into() }
+    }
+
+    /// A number outside what relief accepts.
+    pub fn out_of_range(what: &'static str, allowed: impl Into<String>, got: impl std::fmt::Display) -> Self {
+        Error::OutOfRange { what, allowed: allowed.into(), got: got.to_string() }
+    }
+
+    /// A thread that could not be started.
+    pub fn thread(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> Self {
+        let what = what.into();
+        move |source| Error::Thread { what, source }
     }
 
     /// A flight-path file whose content is wrong.
@@ -175,6 +193,7 @@ impl std::fmt::Display for FileKind {
 
 /// What is wrong with a relief file (see [`Error::File`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum Problem {
     /// The first 8 bytes are not the format's magic.
     BadMagic,

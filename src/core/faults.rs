@@ -281,7 +281,7 @@ fn attach_model(
 }
 
 /// The figures of a run from its per-frame faults and the model's distinct reads.
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
 fn run_of(
     backend: Backend,
     layout: &str,

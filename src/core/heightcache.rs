@@ -346,7 +346,7 @@ pub fn plan_wants(
 /// position (in the tiles' own level-0 units, `position(vertex)`; `None`: the vertex wants
 /// nothing), `decode(key)` its level, tile and the level's tiles per row and column, `key` the
 /// inverse; level `k`'s units are `2^k · unit_m` metres (what is wanted projects to a pixel).
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
 pub fn plan_tiles(
     tiles: u32,
     coarsest: u32,
@@ -759,7 +759,7 @@ impl<S: TileSet> TileCache<S> {
         let loader = std::thread::Builder::new()
             .name(format!("relief-{what}"))
             .spawn(move || load(&*g, &l, capacity))
-            .map_err(|e| Error::InvalidArgument(format!("cannot start the {what} loader thread: {e}")))?;
+            .map_err(Error::thread(format!("{what} loader")))?;
         let stats = HeightCacheStats { cached: true, budget_bytes: budget.gpu_bytes, ..Default::default() };
         Ok(TileCache {
             set,

@@ -6,7 +6,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 
 /// One device and queue, and what they are.
 pub struct Gpu {
@@ -15,7 +15,7 @@ pub struct Gpu {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     /// The first error wgpu reported outside an error scope; wgpu's default is to panic, relief
-    /// turns it into an [`Error::Gpu`] at the next [`Gpu::check`].
+    /// turns it into an [`crate::AppError::Gpu`] at the next [`Gpu::check`].
     uncaptured: Arc<Mutex<Option<String>>>,
 }
 
@@ -38,7 +38,7 @@ impl Gpu {
             compatible_surface: surface,
             ..Default::default()
         }))
-        .map_err(|e| Error::Gpu(format!("no graphics adapter ({e}); {NO_ADAPTER_HINT}")))?;
+        .map_err(|e| crate::app_error::gpu(format!("no graphics adapter ({e}); {NO_ADAPTER_HINT}")))?;
         let have = adapter.limits();
         let required_limits = wgpu::Limits {
             max_texture_dimension_2d: have.max_texture_dimension_2d,
@@ -52,7 +52,7 @@ impl Gpu {
             required_limits,
             ..Default::default()
         }))
-        .map_err(|e| Error::Gpu(format!("cannot open the graphics device: {e}")))?;
+        .map_err(|e| crate::app_error::gpu(format!("cannot open the graphics device: {e}")))?;
         let uncaptured = Arc::new(Mutex::new(None));
         let sink = uncaptured.clone();
         device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
@@ -78,12 +78,12 @@ impl Gpu {
     /// Fails with the first GPU error reported since the device was made, if any.
     pub fn check(&self) -> Result<()> {
         match self.uncaptured.lock().unwrap_or_else(|p| p.into_inner()).take() {
-            Some(e) => Err(Error::Gpu(e)),
+            Some(e) => Err(crate::app_error::gpu(e)),
             None => Ok(()),
         }
     }
 
-    /// Runs `f`, turning validation and out-of-memory errors it causes into [`Error::Gpu`]
+    /// Runs `f`, turning validation and out-of-memory errors it causes into [`crate::AppError::Gpu`]
     /// (for example a heights texture larger than the GPU's memory).
     pub fn scoped<T>(&self, what: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
         let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
@@ -93,7 +93,7 @@ impl Gpu {
         let o = pollster::block_on(oom.pop());
         if let Some(e) = v.or(o) {
             let msg = e.to_string().lines().filter(|l| !l.trim().is_empty()).collect::<Vec<_>>().join(": ");
-            return Err(Error::Gpu(format!("{what}: {msg}")));
+            return Err(crate::app_error::gpu(format!("{what}: {msg}")));
         }
         value
     }
@@ -102,7 +102,7 @@ impl Gpu {
     pub fn wait_idle(&self) -> Result<()> {
         self.device
             .poll(wgpu::PollType::Wait { submission_index: None, timeout: None })
-            .map_err(|e| Error::Gpu(format!("waiting for the GPU: {e}")))?;
+            .map_err(|e| crate::app_error::gpu(format!("waiting for the GPU: {e}")))?;
         self.check()
     }
 }

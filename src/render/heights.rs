@@ -6,7 +6,7 @@
 
 use rayon::prelude::*;
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::format::terrain::{Record, TerrainFile};
 use crate::layout::{Layout, LayoutVisitor};
 use crate::sys::progress::Progress;
@@ -46,7 +46,7 @@ impl HeightTiling {
             tile *= 2;
         }
         best.map(|(_, t)| t).ok_or_else(|| {
-            Error::Gpu(format!(
+            crate::app_error::gpu(format!(
                 "a grid of {posts} x {posts} posts does not fit the GPU's textures \
                  ({max_dim} texels per side, {max_layers} layers)"
             ))

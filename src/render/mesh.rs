@@ -114,9 +114,9 @@ impl DrawnBounds {
         let empty = Bounds { min: [f64::INFINITY; 3], max: [f64::NEG_INFINITY; 3] };
         let grow = |b: &mut Bounds, p: &[f32; 3]| {
             if p.iter().all(|c| c.is_finite()) {
-                for k in 0..3 {
-                    b.min[k] = b.min[k].min(p[k] as f64);
-                    b.max[k] = b.max[k].max(p[k] as f64);
+                for (k, &c) in p.iter().enumerate() {
+                    b.min[k] = b.min[k].min(c as f64);
+                    b.max[k] = b.max[k].max(c as f64);
                 }
             }
         };
@@ -178,7 +178,7 @@ pub struct MeshRenderer {
 }
 
 impl MeshRenderer {
-    /// Builds the pipelines for `colour_format`; GPU errors come back as [`Error::Gpu`].
+    /// Builds the pipelines for `colour_format`; GPU errors come back as [`crate::AppError::Gpu`].
     pub fn new(gpu: &Gpu, colour_format: wgpu::TextureFormat, shade: MeshShadeParams) -> Result<MeshRenderer> {
         gpu.scoped("building the mesh renderer", || Ok(Self::build(gpu, colour_format, shade)))
     }
@@ -284,7 +284,7 @@ impl MeshRenderer {
         let bytes = positions.len() as u64 * MESH_VERTEX_BYTES;
         let limit = gpu.device.limits().max_buffer_size;
         let count = u32::try_from(positions.len()).ok().filter(|_| bytes <= limit).ok_or_else(|| {
-            Error::Gpu(format!(
+            crate::app_error::gpu(format!(
                 "{} triangles need {bytes} bytes of vertices, over the GPU's buffer limit of {limit} bytes",
                 positions.len() / 3
             ))
@@ -399,7 +399,7 @@ mod tests {
         let eye = DVec3::new(0.0, 0.5, 0.5);
         let (nearest, farthest) = d.depth_range_m(eye).unwrap();
         assert!((nearest - 10.0).abs() < 1e-12, "{nearest}");
-        assert!(farthest >= 100.0 && farthest < 101.0, "{farthest}");
+        assert!((100.0..101.0).contains(&farthest), "{farthest}");
         assert!((d.near_plane_m(eye).unwrap() - 2.5).abs() < 1e-12);
         // Every drawn corner is beyond the near plane.
         let near = d.near_plane_m(eye).unwrap();

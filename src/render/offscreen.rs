@@ -89,9 +89,10 @@ fn read_texture(gpu: &Gpu, texture: &wgpu::Texture, bytes_per_texel: u32) -> Res
     });
     gpu.wait_idle()?;
     rx.recv()
-        .map_err(|_| Error::Gpu("readback was dropped".into()))?
-        .map_err(|e| Error::Gpu(format!("readback failed: {e}")))?;
-    let mapped = slice.get_mapped_range().map_err(|e| Error::Gpu(format!("readback mapping failed: {e}")))?;
+        .map_err(|_| crate::app_error::gpu("readback was dropped"))?
+        .map_err(|e| crate::app_error::gpu(format!("readback failed: {e}")))?;
+    let mapped =
+        slice.get_mapped_range().map_err(|e| crate::app_error::gpu(format!("readback mapping failed: {e}")))?;
     let mut out = Vec::with_capacity(row as usize * h as usize);
     for r in 0..h as usize {
         out.extend_from_slice(&mapped[r * padded as usize..r * padded as usize + row as usize]);
@@ -119,7 +120,7 @@ impl Offscreen {
     pub fn with_format(gpu: &Gpu, width_px: u32, height_px: u32, format: wgpu::TextureFormat) -> Result<Offscreen> {
         use wgpu::TextureFormat::*;
         if !matches!(format, Rgba8Unorm | Rgba8UnormSrgb | Bgra8Unorm | Bgra8UnormSrgb) {
-            return Err(Error::Gpu(format!("cannot read back images in format {format:?}")));
+            return Err(crate::app_error::gpu(format!("cannot read back images in format {format:?}")));
         }
         let max = gpu.device.limits().max_texture_dimension_2d;
         if width_px == 0 || height_px == 0 || width_px > max || height_px > max {
@@ -151,7 +152,7 @@ impl Offscreen {
             }
         }
         image::RgbaImage::from_raw(self.width(), self.height(), bytes)
-            .ok_or_else(|| Error::Gpu("readback has the wrong size".into()))
+            .ok_or_else(|| crate::app_error::gpu("readback has the wrong size"))
     }
 }
 

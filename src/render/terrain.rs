@@ -223,7 +223,7 @@ fn morph_layout(stride: u64) -> wgpu::VertexBufferLayout<'static> {
 
 impl TerrainRenderer {
     /// Uploads the heights of `terrain` and builds the pipelines for `colour_format`; GPU errors
-    /// (too little memory, limits) come back as [`crate::Error::Gpu`].
+    /// (too little memory, limits) come back as [`crate::AppError::Gpu`].
     pub fn new(
         gpu: &Gpu,
         terrain: &Arc<TerrainFile>,

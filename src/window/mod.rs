@@ -50,11 +50,12 @@ pub struct WindowSettings {
 
 /// The error for a machine without a display, with what to do instead.
 pub fn no_display(reason: &str) -> Error {
-    Error::NoDisplay(format!(
+    crate::AppError::NoDisplay(format!(
         "cannot open a window ({reason}); fly headless instead: \
          relief path flyover FILE --frames 300 --out path.json && relief fly FILE --path path.json --frames-out frames/ \
          (a mesh: relief mesh view FILE --path path.json)"
     ))
+    .into()
 }
 
 /// winit's reason, without the source location it prefixes OS errors with ("os error at
@@ -125,7 +126,7 @@ fn run<S: Scene>(scene: S, settings: WindowSettings) -> Result<()> {
     check_display()?;
     let event_loop = EventLoop::new().map_err(|e| no_display(&display_error(&e.to_string())))?;
     let mut app = App { scene, settings, shell: None, error: None };
-    event_loop.run_app(&mut app).map_err(|e| Error::Gpu(format!("window event loop: {e}")))?;
+    event_loop.run_app(&mut app).map_err(|e| crate::app_error::gpu(format!("window event loop: {e}")))?;
     // Closed while recording (Esc, the window's close button, a signal, an error): the path so
     // far is saved, and said so.
     if let Some(s) = app.shell.as_mut() {
@@ -289,7 +290,7 @@ impl<S: Scene> App<S> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let surface = instance
             .create_surface(window.clone())
-            .map_err(|e| Error::Gpu(format!("cannot draw into the window: {e}")))?;
+            .map_err(|e| crate::app_error::gpu(format!("cannot draw into the window: {e}")))?;
         let gpu = Gpu::with_instance(instance, Some(&surface))?;
         let caps = surface.get_capabilities(&gpu.adapter);
         let format = caps
@@ -298,7 +299,7 @@ impl<S: Scene> App<S> {
             .copied()
             .find(|f| f.is_srgb())
             .or(caps.formats.first().copied())
-            .ok_or_else(|| Error::Gpu("the window offers no surface format".into()))?;
+            .ok_or_else(|| crate::app_error::gpu("the window offers no surface format"))?;
         let size = window.inner_size();
         let config = wgpu::SurfaceConfiguration {
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
@@ -523,7 +524,7 @@ impl Shell {
                 self.surface.configure(&self.gpu.device, &self.config);
                 return Ok(());
             }
-            other => return Err(Error::Gpu(format!("cannot get the window's next image: {other:?}"))),
+            other => return Err(crate::app_error::gpu(format!("cannot get the window's next image: {other:?}"))),
         };
         let view = frame.texture.create_view(&Default::default());
         let mut encoder = self.gpu.device.create_command_encoder(&Default::default());

@@ -259,6 +259,7 @@ fn mesh_build_cleans_up_on_sigterm_and_sighup() {
             .spawn()
             .unwrap();
         std::thread::sleep(std::time::Duration::from_millis(700));
+        // SAFETY: kill(2) on our own child's pid; no memory is involved.
         unsafe { libc::kill(child.id() as i32, signal) };
         let o = child.wait_with_output().unwrap();
         let left: Vec<String> =

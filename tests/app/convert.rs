@@ -273,6 +273,7 @@ fn interrupted_conversion_leaves_old_file_or_new_one() {
             std::thread::sleep(std::time::Duration::from_micros(200));
         }
         std::thread::sleep(std::time::Duration::from_millis(delay_ms));
+        // SAFETY: kill(2) on our own child's pid; no memory is involved.
         unsafe { libc::kill(child.id() as i32, signal) };
         let res = child.wait_with_output().unwrap();
         let now = std::fs::read(&out).unwrap();

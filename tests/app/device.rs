@@ -162,7 +162,7 @@ fn layouts_os_runs_report_time_under_the_device() {
     for (p, s) in a.iter().zip(b) {
         let (po, so) = (&p["os"], &s["os"]);
         // The same cold faults, now each a request of the device, and their time in the frames.
-        // Two runs of the same flight may differ by one page in a frame: seen on a loaded machine
+        // Two runs of the same flight may differ by a few pages in a frame: seen on a loaded machine
         // (in frame 0, either way), the kernel's doing, not the pager's; within one run the
         // device's requests equal the major faults exactly (below).
         let frames = |r: &Value| -> Vec<f64> {
@@ -170,8 +170,13 @@ fn layouts_os_runs_report_time_under_the_device() {
         };
         let (pf, sf) = (frames(po), frames(so));
         assert_eq!(pf.len(), sf.len(), "{}", s["layout"]);
+        // Frame 0 (the cold open) has been seen 3 pages apart of ~470 with the machine fully
+        // loaded: it may differ by 1 %, later frames by one page.
         assert!(
-            pf.iter().zip(&sf).all(|(a, b)| (a - b).abs() <= 1.0),
+            pf.iter()
+                .zip(&sf)
+                .enumerate()
+                .all(|(k, (a, b))| (a - b).abs() <= if k == 0 { 1f64.max(0.01 * a) } else { 1.0 }),
             "{}: major faults per frame {pf:?} without the device, {sf:?} with it",
             s["layout"]
         );

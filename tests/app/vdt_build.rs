@@ -15,7 +15,7 @@
 //!   resident memory of the build phase within the budget plus [`RSS_OVERHEAD_BYTES`].
 //! - Bad input gives one-line errors.
 //!
-//! The dragon (202k triangles) is in an ignored test (`cargo test --test vdt_build -- --ignored`):
+//! The dragon (202k triangles) is in an ignored test (`cargo test --test app vdt_build -- --ignored`):
 //! its builds take about a minute.
 
 use std::collections::{BTreeSet, HashMap};
@@ -471,7 +471,7 @@ fn memory_stays_within_the_budget() {
 }
 
 #[test]
-#[ignore = "about a minute: cargo test --test vdt_build -- --ignored"]
+#[ignore = "about a minute: cargo test --test app vdt_build -- --ignored"]
 fn dragon_in_an_eighth_of_its_size() {
     let full = build_lib("dragon_202k.ply.gz", 1 << 30, VdtMetric::Length);
     let small = build_cli("dragon_202k.ply.gz", "1/8", "length");

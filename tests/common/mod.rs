@@ -1,5 +1,5 @@
 //! Helpers shared by the integration tests.
-#![allow(dead_code)] // each test binary uses its own subset of the helpers
+#![allow(dead_code, reason = "each test binary uses its own subset of the helpers")]
 
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, OnceLock};

@@ -345,7 +345,7 @@ fn a_remote_flight_reads_are_seen_by_the_observer_a_local_flight_reports_to() {
     let fly = |terrain: Arc<TerrainFile>| {
         let seen = Arc::new(Recorder::default());
         terrain.pager().observe(seen.clone()).unwrap();
-        let mut source = TerrainSource::new(terrain.clone(), refine.clone(), 1, false).unwrap();
+        let mut source = TerrainSource::new(terrain.clone(), refine, 1, false).unwrap();
         let mut frames = 0;
         loop {
             let f = source.update(&cam, 2.0).unwrap();

@@ -37,9 +37,7 @@ impl PageBuildOptions {
     pub fn validate(&self) -> Result<()> {
         let page = self.page_bytes;
         if !page.is_power_of_two() || !(MIN_PAGE_BYTES..=MAX_PAGE_BYTES).contains(&page) {
-            return Err(Error::InvalidArgument(format!(
-                "page size must be a power of two from 1K to 1M bytes, got {page}"
-            )));
+            return Err(Error::out_of_range("page size", "a power of two from 1K to 1M bytes", page));
         }
         Ok(())
     }

@@ -186,9 +186,10 @@ impl FlightPath {
         width_px: u32,
         height_px: u32,
     ) -> Result<Camera> {
-        let frame = self.frames.get(k).ok_or_else(|| {
-            Error::InvalidArgument(format!("frame {k} out of range: the path has {} frames", self.frames.len()))
-        })?;
+        let frame = self
+            .frames
+            .get(k)
+            .ok_or_else(|| Error::out_of_range("frame", format!("below the path's {} frames", self.frames.len()), k))?;
         let (eye, look) = (frame.eye_in_world(), frame.look_at_world());
         let forward = (look - eye).normalize_or_zero();
         let (_, fallback, up) = up.frame();
@@ -242,16 +243,14 @@ fn at_file_position(file: &str, fragment: &str, e: &serde_json::Error) -> String
 
 fn check_frames(frames: usize) -> Result<()> {
     if frames == 0 || frames > MAX_FRAMES {
-        return Err(Error::InvalidArgument(format!("frames must be between 1 and {MAX_FRAMES}, got {frames}")));
+        return Err(Error::out_of_range("frames", format!("between 1 and {MAX_FRAMES}"), frames));
     }
     Ok(())
 }
 
-fn check_positive_m(what: &str, v: Option<f64>) -> Result<()> {
+fn check_positive_m(what: &'static str, v: Option<f64>) -> Result<()> {
     match v {
-        Some(v) if !(v.is_finite() && v > 0.0) => {
-            Err(Error::InvalidArgument(format!("{what} must be a positive number of metres, got {v}")))
-        }
+        Some(v) if !(v.is_finite() && v > 0.0) => Err(Error::out_of_range(what, "a positive number of metres", v)),
         _ => Ok(()),
     }
 }
@@ -504,7 +503,7 @@ pub fn orbit(terrain: &TerrainFile, opts: &OrbitOptions) -> Result<FlightPath> {
     check_positive_m("radius", opts.radius_m)?;
     if let Some(a) = opts.altitude_m {
         if !a.is_finite() {
-            return Err(Error::InvalidArgument(format!("altitude must be a finite number of metres, got {a}")));
+            return Err(Error::out_of_range("altitude", "a finite number of metres", a));
         }
     }
     let window = WindowM::of(terrain);
@@ -590,7 +589,7 @@ pub fn orbit_box(bounds: &Bounds, up: UpAxis, opts: &OrbitOptions) -> Result<Fli
     check_positive_m("radius", opts.radius_m)?;
     if let Some(a) = opts.altitude_m {
         if !a.is_finite() {
-            return Err(Error::InvalidArgument(format!("altitude must be a finite number, got {a}")));
+            return Err(Error::out_of_range("altitude", "a finite number", a));
         }
     }
     let b = BoxFrame::new(bounds, up)?;

@@ -173,7 +173,7 @@ impl RefineThread {
                     }
                 }
             })
-            .map_err(|e| Error::InvalidArgument(format!("cannot start the refinement thread: {e}")))?;
+            .map_err(Error::thread("refinement"))?;
         Ok(RefineThread { jobs, done, spare, handle: Some(handle) })
     }
 

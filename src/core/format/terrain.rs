@@ -577,7 +577,7 @@ impl TerrainFile {
             return Ok(None);
         }
         let mut bytes = vec![0u8; 8 + h.void_mask_bits_bytes() as usize];
-        self.pager.source().read_at(h.void_mask_offset, &mut bytes)?;
+        self.pager.read_range(h.void_mask_offset, &mut bytes)?;
         let stored = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes"));
         bytes.drain(..8);
         Ok(Some(VoidMask { window: h.valid_window, bits: bytes, stored_checksum: stored }))
@@ -604,7 +604,7 @@ impl TerrainFile {
                 let mut at = 0u64;
                 while at < len {
                     let n = (len - at).min(CHECKSUM_BLOCK_BYTES as u64) as usize;
-                    self.pager.source().read_at(start + at, &mut buf[..n])?;
+                    self.pager.read_range(start + at, &mut buf[..n])?;
                     hashes.push(block_hash(&buf[..n]));
                     at += n as u64;
                 }

@@ -360,13 +360,12 @@ impl Utf8Check {
             at += 1;
             match std::str::from_utf8(&self.pending) {
                 Ok(_) => self.pending.clear(),
-                Err(e) => match e.error_len() {
-                    Some(n) => {
+                Err(e) => {
+                    if let Some(n) = e.error_len() {
                         self.error = Some((self.pending_at + e.valid_up_to() as u64 - origin, Some(n)));
                         return;
                     }
-                    None => {}
-                },
+                }
             }
         }
         if let Err(e) = std::str::from_utf8(data) {

@@ -94,7 +94,7 @@ impl Off<'_> {
                     // An empty line (ASCII spaces only) is empty for `trim` too.
                     Err(_) if Words::new(l).next().is_none() => return Ok(true),
                     Err(first) => match exact(raw) {
-                        Some(l) if l.is_empty() => return Ok(true),
+                        Some([]) => return Ok(true),
                         Some(l) => coordinates(l, n, v)?,
                         None => return Err(first),
                     },
@@ -109,7 +109,7 @@ impl Off<'_> {
                         return Ok(true);
                     }
                     match exact(raw) {
-                        Some(l) if l.is_empty() => return Ok(true),
+                        Some([]) => return Ok(true),
                         Some(l) => corners(l, n, f, &mut self.b.corners)?,
                         None => return Err(first),
                     }

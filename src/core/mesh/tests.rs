@@ -37,10 +37,11 @@ fn gzip(bytes: &[u8]) -> Vec<u8> {
     e.finish().unwrap()
 }
 
+/// A read's outcome: the positions' bits, the triangles and the report, or the message.
+type Outcome = Result<(Vec<[u64; 3]>, Vec<[u32; 3]>, String), String>;
+
 /// The outcome of a read as comparable text: the mesh's bits and the report, or the message.
-fn outcome(
-    r: crate::error::Result<(Mesh, super::MeshReport)>,
-) -> Result<(Vec<[u64; 3]>, Vec<[u32; 3]>, String), String> {
+fn outcome(r: crate::error::Result<(Mesh, super::MeshReport)>) -> Outcome {
     match r {
         Ok((m, report)) => {
             let bits = m.positions.iter().map(|p| p.map(f64::to_bits)).collect();
@@ -52,12 +53,12 @@ fn outcome(
 
 /// Reads `path` with the reference and with the streamed reader in every chunk size given;
 /// panics on any difference. Returns the reference's outcome.
-fn same(path: &Path, chunks: &[usize]) -> Result<(Vec<[u64; 3]>, Vec<[u32; 3]>, String), String> {
+fn same(path: &Path, chunks: &[usize]) -> Outcome {
     let want = outcome(reference::read_mesh_with_report(path));
     for &chunk in chunks {
         let got = outcome(read_chunked(path, chunk));
         if got != want {
-            let show = |o: &Result<(Vec<[u64; 3]>, Vec<[u32; 3]>, String), String>| match o {
+            let show = |o: &Outcome| match o {
                 Ok((p, t, r)) => format!("mesh of {} vertices, {} triangles, {r}", p.len(), t.len()),
                 Err(e) => e.clone(),
             };

@@ -177,13 +177,10 @@ impl BlockingOptions {
 
 fn validate_options(o: BlockingOptions) -> Result<()> {
     if !(1..=16).contains(&o.levels_per_node) {
-        return Err(Error::InvalidArgument(format!("levels per meta-node must be 1 to 16, got {}", o.levels_per_node)));
+        return Err(Error::out_of_range("levels per meta-node", "1 to 16", o.levels_per_node));
     }
     if !o.page_bytes.is_power_of_two() || !(MIN_PAGE_BYTES..=MAX_PAGE_BYTES).contains(&o.page_bytes) {
-        return Err(Error::InvalidArgument(format!(
-            "page size must be a power of two from 512 bytes to 1 MiB, got {}",
-            o.page_bytes
-        )));
+        return Err(Error::out_of_range("page size", "a power of two from 512 bytes to 1 MiB", o.page_bytes));
     }
     Ok(())
 }

@@ -52,7 +52,6 @@ use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use memmap2::MmapMut;
 use redb::{Database, Durability, ReadableDatabase, ReadableTable, ReadableTableMetadata, Table, TableDefinition};
 use serde::Serialize;
 
@@ -64,6 +63,7 @@ use crate::error::{Error, IoContext, Result};
 use crate::format::vdt::{write_header, VdtHeader, VdtMetric, HEADER_BYTES, NODE_BYTES};
 use crate::mesh::{read_mesh, Mesh};
 use crate::sys::progress::Progress;
+use crate::sys::scratch::ScratchMap;
 
 /// Pending edges: the B-tree ordered by collapse key.
 const EDGES: TableDefinition<u128, ()> = TableDefinition::new("edges");
@@ -322,11 +322,14 @@ fn build_in_memory(
         bounds,
     };
     if forest.dying.len() as u64 + header.base_triangles != t {
-        return Err(Error::InvalidArgument(format!(
-            "internal error in the VDT build: {} dying and {} base triangles for {t} input triangles",
-            forest.dying.len(),
-            header.base_triangles
-        )));
+        return Err(Error::Internal {
+            stage: "the VDT build",
+            problem: format!(
+                "{} dying and {} base triangles for {t} input triangles",
+                forest.dying.len(),
+                header.base_triangles
+            ),
+        });
     }
     crate::sys::atomic_file::write(output, |w| {
         write_header(w, &header)?;
@@ -674,7 +677,7 @@ impl Store for Disk<'_> {
 
 /// Step 4: patches the parents, writes the VDT file atomically. Returns the dying and base
 /// triangle counts and the file's size.
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
 fn assemble(
     output: &Path,
     db: &Database,
@@ -695,17 +698,16 @@ fn assemble(
     }
     let node_file = node_writer.into_inner().map_err(|e| Error::io(&dir, e.into_error()))?;
     let mut tri_file = tri_writer.into_inner().map_err(|e| Error::io(&dir, e.into_error()))?;
-    // SAFETY: an unlinked temporary file of this process, sized by the writes above; nobody
-    // else can open it, and the map lives only in this function.
-    let mut map = unsafe { MmapMut::map_mut(&node_file) }.at(&dir)?;
-    if map.len() as u64 != nodes * NODE_BYTES as u64 {
+    let mut map = ScratchMap::from_unlinked(node_file, &dir)?;
+    let node_bytes = map.slice::<u8>().len();
+    if node_bytes as u64 != nodes * NODE_BYTES as u64 {
         return Err(Error::Scratch {
             path: dir,
-            problem: format!("node file of {} bytes for {nodes} nodes", map.len()),
+            problem: format!("node file of {node_bytes} bytes for {nodes} nodes"),
         });
     }
     {
-        let records: &mut [VdtNode] = bytemuck::cast_slice_mut(&mut map[..]);
+        let records: &mut [VdtNode] = map.slice_mut();
         for id in leaves as usize..records.len() {
             for c in records[id].children {
                 records[c as usize].parent = id as u32;
@@ -726,7 +728,7 @@ fn assemble(
     tri_file.seek(std::io::SeekFrom::Start(0)).at(&dir)?;
     crate::sys::atomic_file::write(output, |w| {
         write_header(w, &header)?;
-        w.write_all(&map)?;
+        w.write_all(map.slice::<u8>())?;
         let copied = std::io::copy(&mut (&tri_file).take(triangles_written * 12), w)?;
         if copied != triangles_written * 12 {
             return Err(std::io::Error::other("scratch triangle file is short"));

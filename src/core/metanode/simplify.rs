@@ -992,7 +992,7 @@ impl Region {
 }
 
 fn internal(problem: String) -> Error {
-    Error::InvalidArgument(format!("internal error in the VDT build: {problem}"))
+    Error::Internal { stage: "the VDT build", problem }
 }
 
 #[cfg(test)]

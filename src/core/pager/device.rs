@@ -43,18 +43,14 @@ impl DeviceSpec {
     /// `mb_per_s` (10⁶ bytes a second); refuses values that are not finite and positive.
     pub fn new(latency_ms: f64, queue_depth: u32, mb_per_s: Option<f64>) -> Result<DeviceSpec> {
         if !(0.0..=60_000.0).contains(&latency_ms) {
-            return Err(Error::InvalidArgument(format!(
-                "device latency must be between 0 and 60000 ms, got {latency_ms}"
-            )));
+            return Err(Error::out_of_range("device latency", "between 0 and 60000 ms", latency_ms));
         }
         if queue_depth == 0 || queue_depth > MAX_QUEUE_DEPTH {
-            return Err(Error::InvalidArgument(format!(
-                "device queue depth must be 1 to {MAX_QUEUE_DEPTH}, got {queue_depth}"
-            )));
+            return Err(Error::out_of_range("device queue depth", format!("1 to {MAX_QUEUE_DEPTH}"), queue_depth));
         }
         if let Some(r) = mb_per_s {
             if !(r.is_finite() && r > 0.0) {
-                return Err(Error::InvalidArgument(format!("device throughput must be positive MB/s, got {r}")));
+                return Err(Error::out_of_range("device throughput", "positive MB/s", r));
             }
         }
         Ok(DeviceSpec { latency_ms, queue_depth, bytes_per_s: mb_per_s.map(|r| r * 1e6) })

@@ -121,8 +121,9 @@ impl DeviceFs {
             kind,
             perm,
             nlink,
-            // SAFETY (no memory involved): getuid/getgid cannot fail.
+            // SAFETY: getuid cannot fail and touches no memory.
             uid: unsafe { libc::getuid() },
+            // SAFETY: as getuid.
             gid: unsafe { libc::getgid() },
             rdev: 0,
             blksize: 4096,
@@ -358,6 +359,7 @@ mod tests {
     fn majors() -> i64 {
         // SAFETY: getrusage fills the struct it is given.
         let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+        // SAFETY: as above.
         unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) };
         u.ru_majflt
     }

@@ -96,7 +96,7 @@ pub struct PageGeometry {
 impl PageGeometry {
     pub fn new(page_bytes: u64) -> Result<PageGeometry> {
         if page_bytes == 0 || !page_bytes.is_power_of_two() {
-            return Err(Error::InvalidArgument(format!("page size must be a power of two, got {page_bytes} bytes")));
+            return Err(Error::out_of_range("page size", "a power of two", format!("{page_bytes} bytes")));
         }
         Ok(PageGeometry { page_bytes, shift: page_bytes.trailing_zeros() })
     }
@@ -374,7 +374,7 @@ impl BlockLoader for SourceLoader {
 /// first block's start to the last one's end, into `span`; counts the span's bytes in `reads`,
 /// reports each block to the observer and hands it to `f`. Returns the time the read took
 /// (not counting `f`).
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
 fn read_span(
     source: &dyn Source,
     table: &dyn BlockTable,
@@ -669,6 +669,14 @@ impl Pager {
                 b
             })
             .collect();
+        // Blocks of one table ascend in the file with their ids (every relief table does).
+        let ordered = extents.windows(2).all(|w| w[0].offset + w[0].bytes <= w[1].offset);
+        if !ordered {
+            return Err(Error::InvalidArgument(format!(
+                "{}: blocks to read together overlap or are out of file order",
+                self.source.path().display()
+            )));
+        }
         // Page runs covering the blocks, merged where they touch.
         let mut runs: Vec<(u64, u64)> = Vec::new();
         for e in &extents {
@@ -677,14 +685,6 @@ impl Pager {
                 Some(last) if last.1 >= p => last.1 = last.1.max(q),
                 _ => runs.push((p, q)),
             }
-        }
-        // Blocks of one table ascend in the file with their ids (every relief table does).
-        let ordered = extents.windows(2).all(|w| w[0].offset + w[0].bytes <= w[1].offset);
-        if !ordered {
-            return Err(Error::InvalidArgument(format!(
-                "{}: blocks to read together overlap or are out of file order",
-                self.source.path().display()
-            )));
         }
         self.source.read_page_runs(&runs, &mut |page, bytes| {
             let (lo, hi) = (page * PAGE_BYTES, page * PAGE_BYTES + bytes.len() as u64);
@@ -725,6 +725,15 @@ impl Pager {
     /// Drops the file from the OS page cache (see [`Source::evict`]); the pool keeps its blocks.
     pub fn evict(&self) -> Result<()> {
         self.source.evict()
+    }
+
+    /// Bytes outside the block table (a file's trailing sections, a checksum pass) read from the
+    /// source and reported to the observer as a read of that range; not counted in [`Self::reads`],
+    /// which counts blocks.
+    pub fn read_range(&self, offset: u64, buf: &mut [u8]) -> Result<()> {
+        self.source.read_at(offset, buf)?;
+        report(&self.observer, Extent { offset, bytes: buf.len() as u64 });
+        Ok(())
     }
 
     /// A cold start for measurements: readahead off, then the file dropped from the OS page

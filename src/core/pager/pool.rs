@@ -647,15 +647,14 @@ impl<L: BlockLoader> BufferPool<L> {
     /// requests of up to `io.coalesce_bytes`.
     pub fn with_io(loader: L, holders: usize, io: PoolIo) -> Result<BufferPool<L>> {
         if io.threads == 0 || io.threads > 256 {
-            return Err(Error::InvalidArgument(format!(
-                "the buffer pool needs 1 to 256 I/O threads, got {}",
-                io.threads
-            )));
+            return Err(Error::out_of_range("the buffer pool's I/O threads", "1 to 256", io.threads));
         }
         if !(MIN_HOLDERS..=MAX_HOLDERS).contains(&holders) {
-            return Err(Error::InvalidArgument(format!(
-                "the buffer pool needs between {MIN_HOLDERS} and {MAX_HOLDERS} place holders, got {holders}"
-            )));
+            return Err(Error::out_of_range(
+                "the buffer pool's place holders",
+                format!("between {MIN_HOLDERS} and {MAX_HOLDERS}"),
+                holders,
+            ));
         }
         let shared = Arc::new(Shared {
             loader,
@@ -672,7 +671,7 @@ impl<L: BlockLoader> BufferPool<L> {
             let thread = std::thread::Builder::new()
                 .name("relief-pool-io".into())
                 .spawn(move || io_shared.run())
-                .map_err(|e| Error::Pool(format!("cannot start an I/O thread: {e}")))?;
+                .map_err(Error::thread("buffer pool's I/O"))?;
             // Pushed at once, so a failure to start the next one still stops and joins these.
             pool.io.push(thread);
         }

@@ -58,7 +58,10 @@ struct SharedRows {
     bounds: *mut [f32; 2],
     side: usize,
 }
+// SAFETY: the grids outlive the pass that shares them; the type's note says why the accesses
+// from several tasks do not alias.
 unsafe impl Send for SharedRows {}
+// SAFETY: as for Send.
 unsafe impl Sync for SharedRows {}
 
 impl SharedRows {
@@ -214,7 +217,7 @@ fn level_row(grid: Grid, stored: &Stored, spacing_m: [f64; 2], rows: &SharedRows
 /// bounds live in separate arrays so that, during conversion, the mapped height pages are written
 /// once and only read afterwards. `progress` is called with the number of vertices finished after
 /// each row.
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
 pub fn compute_bounds(
     grid: Grid,
     spacing_m: [f64; 2],

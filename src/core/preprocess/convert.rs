@@ -648,7 +648,7 @@ fn stored_pages(layout: &AnyLayout, stored: &Stored, payload_bytes: u64) -> Pres
 /// where it is stored, zero otherwise, in parallel blocks of [`terrain::CHECKSUM_BLOCK_BYTES`] with
 /// positioned writes, present page `k` (in order) at file page `first_page + k`. Returns the
 /// blocks' hashes in order, over every page of the payload as read (left-out pages are zeros).
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
 fn gather(
     layout: &AnyLayout,
     stored: &Stored,

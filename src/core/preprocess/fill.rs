@@ -14,7 +14,10 @@ struct Cols {
     z: *const f32,
     acc: *mut [f32; 2],
 }
+// SAFETY: the pointers are into grids the sweep borrows for its whole run; tasks touch disjoint
+// columns of `acc` and only read `z` (see `at`).
 unsafe impl Send for Cols {}
+// SAFETY: as for Send.
 unsafe impl Sync for Cols {}
 
 impl Cols {
@@ -23,8 +26,9 @@ impl Cols {
     /// # Safety
     /// `i` in bounds; the caller owns the column of `i` in `acc` (no other live reference).
     #[inline(always)]
-    #[allow(clippy::mut_from_ref)]
+    #[allow(clippy::mut_from_ref, reason = "disjoint columns; see the safety contract")]
     unsafe fn at(&self, i: usize) -> (f32, &mut [f32; 2]) {
+        // SAFETY: the caller's contract above.
         unsafe { (*self.z.add(i), &mut *self.acc.add(i)) }
     }
 }

@@ -566,8 +566,9 @@ impl Refiner {
                     .num_threads(threads - 1)
                     .thread_name(|k| format!("relief-refine-{k}"))
                     .build()
-                    .map_err(|e| {
-                        crate::Error::InvalidArgument(format!("cannot start {threads} refinement threads: {e}"))
+                    .map_err(|e| crate::Error::Thread {
+                        what: format!("{threads} refinement"),
+                        source: std::io::Error::other(e),
                     })?,
             )
         } else {
@@ -790,7 +791,7 @@ impl Refiner {
     /// tasks to balance the threads, refines the tasks in parallel (the calling thread's straight
     /// into the strip, the workers' into their own), then stitches the workers' in with degenerate
     /// triangles so that every vertex keeps its winding parity.
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
     fn refine_parallel<L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally>(
         &mut self,
         layout: &L,

@@ -328,7 +328,7 @@ impl Progressive {
         let handle = std::thread::Builder::new()
             .name("relief-fetch".into())
             .spawn(move || fetcher(t, options, asked, settle, plan_rx, arrive_tx))
-            .map_err(|e| Error::InvalidArgument(format!("cannot start the fetch thread: {e}")))?;
+            .map_err(Error::thread("fetch"))?;
         p.plans = Some(plan_tx);
         p.arrivals = arrive_rx;
         p.fetcher = Some(handle);

@@ -348,7 +348,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally
 
     /// [`Self::side`] for a level known only at run time.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
     fn side_any<const MASKED: bool>(&mut self, at: At, a: u64, ai: u64, c: Vertex, l: u32, mask: u8, m: S) -> At {
         let ck = pack(c.x, c.y);
         if l & 1 == 1 {
@@ -362,7 +362,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally
     /// below the root triangles) and split vertex `c`: tests `c` and refines the triangle if it
     /// is active, else appends `a`.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
     fn side<const ODD: bool, const MASKED: bool>(
         &mut self,
         at: At,
@@ -381,7 +381,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally
     /// Refines the triangle of level `l` (odd when `ODD`), apex `a`, split vertex `c`, given the
     /// test of `c`: into it when active, else appends `a`.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
     fn enter<const ODD: bool, const MASKED: bool>(
         &mut self,
         at: At,
@@ -412,7 +412,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally
     /// from in the next) whose split vertex `s` tested active, apex `a` a split vertex.
     /// Recursive; the even level below is inlined into it, so one call refines two levels.
     #[inline(never)]
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
     fn node_odd<const MASKED: bool>(
         &mut self,
         at: At,
@@ -429,7 +429,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally
 
     /// [`Self::node_odd`] for even levels (≥ 2): a level-2 triangle's split vertex has no children.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
     fn node_even<const MASKED: bool>(
         &mut self,
         at: At,
@@ -452,7 +452,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally
     /// tested at once in f32 lanes ([`lanes`]), culling included, before either is entered (so
     /// their records are read one after the other); for any other metric one after the other.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
+    #[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
     fn node<const ODD: bool, const MASKED: bool>(
         &mut self,
         at: At,
@@ -559,7 +559,7 @@ impl<'a, L: Layout, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally
 /// The active test of vertex `c` (packed, record `index`) at level `lc`, culling against `mask`
 /// when `MASKED`: the plane mask its children start from and its morph point, if it is active.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
 pub(super) fn probe<const MASKED: bool, R: RecordSource + ?Sized, M: ErrorMetric, S: Carry, C: Tally>(
     records: &R,
     view: &View<M>,

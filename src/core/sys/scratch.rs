@@ -29,6 +29,20 @@ impl ScratchMap {
         Ok(ScratchMap { _file: file, map, len: bytes as usize })
     }
 
+    /// Maps a scratch file this process wrote itself: `file` must come from
+    /// [`tempfile::tempfile_in`] (unlinked, so nobody else can open it). `dir` names it in errors.
+    pub fn from_unlinked(file: std::fs::File, dir: &Path) -> Result<ScratchMap> {
+        let len = file.metadata().at(dir)?.len();
+        if len == 0 {
+            return Ok(ScratchMap { map: MmapMut::map_anon(1).at(dir)?, _file: file, len: 0 });
+        }
+        // SAFETY: as in `new`: an unlinked file of this process, mapped once, outliving nothing
+        // that reads it (the map owns the file).
+        let map = unsafe { MmapMut::map_mut(&file) }.at(dir)?;
+        Ok(ScratchMap { _file: file, map, len: len as usize })
+    }
+
+    /// The bytes, as records.
     pub fn slice_mut<T: bytemuck::Pod>(&mut self) -> &mut [T] {
         bytemuck::cast_slice_mut(&mut self.map[..self.len])
     }
