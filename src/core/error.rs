@@ -62,6 +62,9 @@ pub enum Error {
     /// A number outside what relief accepts: what it is, what is allowed, what was given.
     #[error("{what} must be {allowed}, got {got}")]
     OutOfRange { what: &'static str, allowed: String, got: String },
+    /// A block number past a file's block table (`pager`).
+    #[error("{}: block {block} out of range ({blocks} blocks)", path.display())]
+    BlockOutOfRange { path: PathBuf, block: u32, blocks: u32 },
     /// A thread relief needs could not be started (the OS refused: too many threads, no memory).
     #[error("cannot start the {what} thread: {source}")]
     Thread {

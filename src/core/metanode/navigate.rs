@@ -417,20 +417,20 @@ impl<S: MetaStore> Navigator<S> {
             match got {
                 Some(Some(c)) => *child = c,
                 _ => {
-                    return Err(Error::InvalidArgument(format!(
-                        "meta-node {m}: child {local} of node {} missing",
-                        pnode.id
-                    )))
+                    return Err(Error::Internal {
+                        stage: "meta-node navigation",
+                        problem: format!("meta-node {m}: child {local} of node {} missing", pnode.id),
+                    })
                 }
             }
         }
         let created =
             self.store.with_block(pmeta, |view| view.nodes.get(plocal).map(|v| view.triangles_of(v).to_vec()))?;
         let Some(Some(created)) = created else {
-            return Err(Error::InvalidArgument(format!(
-                "meta-node {pmeta} of active node {} is not in memory",
-                pnode.id
-            )));
+            return Err(Error::Internal {
+                stage: "meta-node navigation",
+                problem: format!("meta-node {pmeta} of active node {} is not in memory", pnode.id),
+            });
         };
         let [(a, a_pos), (b, b_pos)] = children;
         if a.dfs_lo != pnode.dfs_lo
@@ -516,7 +516,10 @@ impl<S: MetaStore> Navigator<S> {
         }
         let got = self.store.with_block(pm, |view| view.nodes.get(pl).map(|p| (*p, view.position(p))))?;
         let Some(Some((p, p_pos))) = got else {
-            return Err(Error::InvalidArgument(format!("meta-node {pm}: parent {pl} missing")));
+            return Err(Error::Internal {
+                stage: "meta-node navigation",
+                problem: format!("meta-node {pm}: parent {pl} missing"),
+            });
         };
         let a_pos = self.active[&first].position;
         let a_leaves = self.active[&first].node.leaves as u64 + self.active[&second].node.leaves as u64;

@@ -403,12 +403,10 @@ fn read_span(
 }
 
 fn extent_of(source: &dyn Source, table: &dyn BlockTable, id: u32) -> Result<Extent> {
-    table.extent(id).ok_or_else(|| {
-        Error::InvalidArgument(format!(
-            "{}: block {id} out of range ({} blocks)",
-            source.path().display(),
-            table.blocks()
-        ))
+    table.extent(id).ok_or_else(|| Error::BlockOutOfRange {
+        path: source.path().to_path_buf(),
+        block: id,
+        blocks: table.blocks(),
     })
 }
 
