@@ -402,6 +402,11 @@ fn read_span(
     Ok(read)
 }
 
+/// The pages `[p, q)` an extent lies on.
+fn pages_of(e: Extent) -> (u64, u64) {
+    (e.offset / PAGE_BYTES, (e.offset + e.bytes).div_ceil(PAGE_BYTES))
+}
+
 fn extent_of(source: &dyn Source, table: &dyn BlockTable, id: u32) -> Result<Extent> {
     table.extent(id).ok_or_else(|| Error::BlockOutOfRange {
         path: source.path().to_path_buf(),
@@ -602,10 +607,15 @@ impl Pager {
 
     /// What this pager has read from its source so far (map access: nothing it can count).
     pub fn reads(&self) -> ReadStats {
+        self.read_counter().map(ReadCounter::get).unwrap_or_default()
+    }
+
+    /// Where this pager counts its reads (map access: nowhere, the OS pages the file in).
+    fn read_counter(&self) -> Option<&ReadCounter> {
         match &self.mode {
-            Mode::Map => ReadStats::default(),
-            Mode::Read(r) => r.get(),
-            Mode::Pool(p) => p.loader().reads.get(),
+            Mode::Map => None,
+            Mode::Read(r) => Some(r),
+            Mode::Pool(p) => Some(&p.loader().reads),
         }
     }
 
@@ -642,8 +652,7 @@ impl Pager {
         let resident = self.source.resident_pages(0, pages)?;
         (0..n)
             .map(|id| {
-                let e = self.extent(id)?;
-                let (p, q) = (e.offset / PAGE_BYTES, (e.offset + e.bytes).div_ceil(PAGE_BYTES));
+                let (p, q) = pages_of(self.extent(id)?);
                 Ok(resident.get(p as usize..q as usize).is_some_and(|r| r.iter().all(|&x| x)))
             })
             .collect()
@@ -651,22 +660,20 @@ impl Pager {
 
     /// Reads blocks `ids` in as few requests as the source can make (a remote file: coalesced
     /// range requests, several in flight; pages in its cache without any) and calls `f` with
-    /// each, in ascending order of id. Counted in [`Self::reads`] (read and pool access) and
-    /// reported to the observer as any other read. For look-ahead:
-    /// many blocks asked for at once cost one round trip, where [`Self::block`] costs one each.
-    pub fn read_blocks(&self, ids: &[u32], mut f: impl FnMut(u32, &[u8]) -> Result<()>) -> Result<()> {
+    /// each, in ascending order of id, as records of `T` (a block must hold whole records), so
+    /// that the bytes are copied once, from the source into the records. Counted in
+    /// [`Self::reads`] (read and pool access) and reported to the observer as any other read. For
+    /// look-ahead: many blocks asked for at once cost one round trip, where [`Self::block`] costs
+    /// one each.
+    pub fn read_blocks<T: bytemuck::Pod>(
+        &self,
+        ids: &[u32],
+        mut f: impl FnMut(u32, Box<[T]>) -> Result<()>,
+    ) -> Result<()> {
         let mut ids = ids.to_vec();
         ids.sort_unstable();
         ids.dedup();
         let extents = ids.iter().map(|&id| self.extent(id)).collect::<Result<Vec<Extent>>>()?;
-        let mut bufs: Vec<BlockBuf> = extents
-            .iter()
-            .map(|e| {
-                let mut b = BlockBuf::default();
-                b.resize(e.bytes as usize);
-                b
-            })
-            .collect();
         // Blocks of one table ascend in the file with their ids (every relief table does).
         let ordered = extents.windows(2).all(|w| w[0].offset + w[0].bytes <= w[1].offset);
         if !ordered {
@@ -675,10 +682,21 @@ impl Pager {
                 self.source.path().display()
             )));
         }
+        let record = std::mem::size_of::<T>().max(1) as u64;
+        if let Some(e) = extents.iter().find(|e| e.bytes % record != 0) {
+            return Err(Error::InvalidArgument(format!(
+                "{}: a block of {} bytes at {} is not whole {record}-byte records",
+                self.source.path().display(),
+                e.bytes,
+                e.offset
+            )));
+        }
+        let mut blocks: Vec<Box<[T]>> =
+            extents.iter().map(|e| bytemuck::zeroed_slice_box((e.bytes / record) as usize)).collect();
         // Page runs covering the blocks, merged where they touch.
         let mut runs: Vec<(u64, u64)> = Vec::new();
-        for e in &extents {
-            let (p, q) = (e.offset / PAGE_BYTES, (e.offset + e.bytes).div_ceil(PAGE_BYTES));
+        for &e in &extents {
+            let (p, q) = pages_of(e);
             match runs.last_mut() {
                 Some(last) if last.1 >= p => last.1 = last.1.max(q),
                 _ => runs.push((p, q)),
@@ -688,29 +706,25 @@ impl Pager {
             let (lo, hi) = (page * PAGE_BYTES, page * PAGE_BYTES + bytes.len() as u64);
             // The first block ending after `lo`, then every block starting before `hi`.
             let first = extents.partition_point(|e| e.offset + e.bytes <= lo);
-            for (e, buf) in extents[first..].iter().zip(&mut bufs[first..]) {
+            for (e, block) in extents[first..].iter().zip(&mut blocks[first..]) {
                 if e.offset >= hi {
                     break;
                 }
                 let (s, t) = (e.offset.max(lo), (e.offset + e.bytes).min(hi));
                 if s < t {
-                    buf.bytes_mut()[(s - e.offset) as usize..(t - e.offset) as usize]
+                    bytemuck::cast_slice_mut::<T, u8>(block)[(s - e.offset) as usize..(t - e.offset) as usize]
                         .copy_from_slice(&bytes[(s - lo) as usize..(t - lo) as usize]);
                 }
             }
             Ok(())
         })?;
-        let counter = match &self.mode {
-            Mode::Map => None,
-            Mode::Read(r) => Some(r),
-            Mode::Pool(p) => Some(&p.loader().reads),
-        };
-        for ((&id, e), buf) in ids.iter().zip(&extents).zip(&bufs) {
+        let counter = self.read_counter();
+        for ((&id, e), block) in ids.iter().zip(&extents).zip(blocks) {
             if let Some(c) = counter {
                 c.add(&*self.table, 1, e.bytes);
             }
             report(&self.observer, *e);
-            f(id, buf.bytes())?;
+            f(id, block)?;
         }
         Ok(())
     }

@@ -312,8 +312,8 @@ impl Progressive {
             .take(n_blocks as usize)
             .collect();
         let mut have = Vec::with_capacity(resident.len());
-        pager.read_blocks(&resident, |b, bytes| {
-            have.push((b as u64, decode(bytes)));
+        pager.read_blocks(&resident, |b, records: Box<[Record]>| {
+            have.push((b as u64, records));
             Ok(())
         })?;
         let mut settle = Settle::new(terrain.layout().clone(), n_blocks as usize);
@@ -486,10 +486,6 @@ impl Drop for Progressive {
 }
 
 /// Records from their file bytes (a whole number of records).
-fn decode(bytes: &[u8]) -> Box<[Record]> {
-    bytes.chunks_exact(RECORD_BYTES as usize).map(bytemuck::pod_read_unaligned::<Record>).collect()
-}
-
 /// The fetcher thread: turns plans into blocks (the missed ones, their look-ahead, or the
 /// missing ancestors of records that are here but not effective), fetches them, hands them over.
 fn fetcher(
@@ -528,8 +524,8 @@ fn fetcher(
         // Decoded here, so that the refining thread only takes the blocks over.
         let ids: Vec<u32> = wanted.iter().filter_map(|&b| u32::try_from(b).ok()).collect();
         let mut staged: Vec<(u64, Box<[Record]>)> = Vec::with_capacity(ids.len());
-        let result = terrain.pager().read_blocks(&ids, |b, bytes| {
-            staged.push((b as u64, decode(bytes)));
+        let result = terrain.pager().read_blocks(&ids, |b, records: Box<[Record]>| {
+            staged.push((b as u64, records));
             Ok(())
         });
         let arrival = match result {
