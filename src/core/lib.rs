@@ -7,6 +7,13 @@
 //! disk-page hierarchies). Everything here builds without a GPU or a window: an engine with its
 //! own renderer uses this crate alone. See `ARCHITECTURE.md`.
 
+// Without `native` (the wasm build of the web viewer) the OS-only items are left out, and what
+// only they used is unused there; the native build is where unused code is a warning.
+#![cfg_attr(
+    not(feature = "native"),
+    allow(unused_imports, unused_variables, dead_code, reason = "items used only by native-only code")
+)]
+
 #[cfg(target_endian = "big")]
 compile_error!("relief's terrain files are little-endian and mapped in place; big-endian targets are not supported");
 
@@ -14,6 +21,7 @@ pub mod camera;
 pub mod dem;
 pub mod diskpages;
 pub mod error;
+#[cfg(feature = "native")]
 pub mod faults;
 pub mod flight;
 pub mod format;
@@ -22,6 +30,7 @@ pub mod heightcache;
 pub mod layout;
 pub mod lod;
 pub mod mesh;
+#[cfg(feature = "native")]
 pub mod metanode;
 pub mod pager;
 pub mod preprocess;

@@ -374,3 +374,70 @@ fn a_remote_flight_reads_are_seen_by_the_observer_a_local_flight_reports_to() {
     let net = remote.pager().network().unwrap();
     assert!(net.requests > 1 && net.bytes > 0, "{net:?}");
 }
+
+/// The web viewer's way (`pager::hosted`, `Progressive::hosted`): no thread, the host fetches
+/// the ranges each request names and delivers them. Every frame is conforming, the flight
+/// converges to the local strip within a few rounds, and no byte is fetched twice.
+#[test]
+fn a_hosted_flight_fetches_each_byte_once_and_converges_to_the_local_strip() {
+    use relief_core::pager::hosted::HostedFile;
+    use relief_core::refine::check::check_strip;
+    use relief_core::refine::progressive::{Progressive, ProgressiveOptions};
+    use std::collections::HashSet;
+    use std::sync::Arc;
+
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let bytes = std::fs::read(&local).unwrap();
+    let name = Path::new("http://127.0.0.1/zurich.relief");
+    let hosted = Arc::new(HostedFile::new(name, bytes.len() as u64));
+    // The opening request: the header and the coarsest levels (64 KiB; the viewer asks more).
+    let first = bytes.len().min(64 << 10);
+    hosted.insert(0, &bytes[..first]).unwrap();
+    let mut fetched: Vec<(u64, u64)> = vec![(0, first as u64)];
+    let terrain = Arc::new(TerrainFile::from_source(name, hosted.clone(), Access::Read).unwrap());
+    assert!(terrain.is_remote());
+    let mut progressive = Progressive::hosted(terrain.clone(), ProgressiveOptions::default()).unwrap();
+    let (mut refiner, cam) = (Refiner::new(1).unwrap(), view());
+    let refine = RefineOptions { tolerance_px: 2.0, ..Default::default() };
+    let grid = terrain.grid();
+    let mut strip = Strip::new();
+    let mut frames = 0;
+    let last = loop {
+        let frame = progressive.refine(&mut refiner, &cam, &refine, &mut strip).unwrap();
+        let inserted: HashSet<(u32, u32)> = strip.vertices.iter().map(|v| (v.x, v.y)).collect();
+        let check = check_strip(grid, &strip, |x, y| inserted.contains(&(x, y)));
+        assert!(check.crack_free, "frame {frames}: {check:?}");
+        frames += 1;
+        if frame.complete() || frames > 100 {
+            break frame;
+        }
+        // The host: fetch every range of the request (each byte once), insert, deliver.
+        while let Some(request) = progressive.take_request().unwrap() {
+            for &(a, b) in &request.ranges {
+                assert!(fetched.iter().all(|&(c, d)| b <= c || d <= a), "{a}..{b} fetched again: {fetched:?}");
+                fetched.push((a, b));
+                hosted.insert(a, &bytes[a as usize..b as usize]).unwrap();
+            }
+            progressive.deliver(request).unwrap();
+        }
+    };
+    assert!(last.complete(), "still coarse after {frames} frames: {last:?}");
+    assert!(frames >= 2, "the first frame, from the opening range alone, is coarse");
+    assert!((2..=6).contains(&last.round_trips), "complete within a few round trips: {last:?}");
+    assert_eq!(strip.vertices, strip_of(&TerrainFile::open(&local).unwrap()).vertices, "converged to the local strip");
+    let stats = terrain.pager().network().unwrap();
+    assert_eq!(
+        stats.bytes,
+        fetched.iter().map(|&(a, b)| b - a).sum::<u64>(),
+        "the source counted what the host fetched"
+    );
+    assert!(stats.bytes < bytes.len() as u64, "a view fetches part of the file");
+    eprintln!(
+        "hosted: complete after {frames} frames, {} rounds, {} ranges, {} of {} bytes",
+        last.round_trips,
+        fetched.len(),
+        stats.bytes,
+        bytes.len()
+    );
+}

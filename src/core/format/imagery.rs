@@ -41,6 +41,7 @@ use super::{read_header, FileKind, Format, HeaderBytes, Problem};
 use crate::error::{Error, Result};
 use crate::pager::{Access, FixedBlocks, Pager};
 use crate::sys::progress::Progress;
+#[cfg(feature = "native")]
 use crate::sys::scratch::ScratchMap;
 
 /// The version this build writes and reads.
@@ -337,6 +338,7 @@ pub struct TilingReport {
     pub seconds: f64,
 }
 
+#[cfg(feature = "native")]
 /// Writes the imagery tile file `out` of a `width × height` RGBA8 image (`rgba`, rows from the
 /// top), placed by `placement` (see [`ImageryHeader::placement`]). Coarser levels are built in
 /// scratch files in `scratch_dir`, so memory stays a few rows of tiles whatever the image's size.

@@ -412,6 +412,7 @@ impl TerrainFile {
         TerrainFile::from_source(path, source, access)
     }
 
+    #[cfg(feature = "native")]
     /// A remote terrain file (`http(s)://`, `s3://`) read as `options` say (cache, requests in
     /// flight), with read or pool access.
     pub fn open_remote(

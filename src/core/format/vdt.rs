@@ -36,8 +36,8 @@ use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 
 use super::{corrupt, read_header, Bounds, FileKind, Format, HeaderBytes, Problem};
-use crate::error::Result;
-use crate::pager::source::MappedFile;
+use crate::error::{Error, Result};
+use crate::pager::source::{Source, SourceKind};
 
 pub const NONE: u32 = u32::MAX;
 
@@ -188,17 +188,29 @@ pub fn write_header(w: &mut impl Write, header: &VdtHeader) -> std::io::Result<(
 pub struct VdtFile {
     path: PathBuf,
     header: VdtHeader,
-    file: Arc<MappedFile>,
+    /// A local map (checked at open): the node and triangle sections are borrowed in place.
+    file: Arc<dyn Source>,
 }
 
 impl VdtFile {
     /// Opens and validates a VDT file (see the module docs for what is checked).
     pub fn open(path: &Path) -> Result<VdtFile> {
-        let file = Arc::new(MappedFile::open(path)?);
+        let file = crate::pager::open(path, SourceKind::Map)?;
+        if file.mapped().is_none() {
+            return Err(Error::InvalidArgument(format!(
+                "{}: a VDT file is read in place from a local map (not remotely)",
+                path.display()
+            )));
+        }
         let header: VdtHeader = read_header(&*file)?;
         let vdt = VdtFile { path: path.to_path_buf(), header, file };
         vdt.check_records()?;
         Ok(vdt)
+    }
+
+    /// The mapped file (a map, checked at open).
+    fn bytes(&self) -> &[u8] {
+        self.file.mapped().unwrap_or(&[])
     }
 
     /// Every node's links, counts and triangle range, and every triangle's corners, against the
@@ -259,14 +271,14 @@ impl VdtFile {
     pub fn nodes(&self) -> &[VdtNode] {
         let start = HEADER_BYTES;
         let end = start + self.header.nodes as usize * NODE_BYTES;
-        bytemuck::cast_slice(&self.file.bytes()[start..end])
+        bytemuck::cast_slice(&self.bytes()[start..end])
     }
 
     /// Every triangle record: grouped by m(t) in increasing node id, then the base triangles.
     pub fn triangles(&self) -> &[VdtTriangle] {
         let start = HEADER_BYTES + self.header.nodes as usize * NODE_BYTES;
         let end = start + self.header.triangles as usize * TRIANGLE_BYTES;
-        bytemuck::cast_slice(&self.file.bytes()[start..end])
+        bytemuck::cast_slice(&self.bytes()[start..end])
     }
 
     /// The triangles that never die (m(t) = none): the base mesh over the roots.

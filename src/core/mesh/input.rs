@@ -261,14 +261,14 @@ impl Input {
 /// The gzip trailer's ISIZE (the last member's length modulo 2^32), bounded by deflate's largest
 /// expansion (1032:1): a hint for reserving, never trusted for anything else.
 fn gzip_size_hint(file: &File, len: u64) -> usize {
-    use std::os::unix::fs::FileExt;
     let most = len.saturating_mul(1032);
     let mut tail = [0u8; 4];
-    let isize = if len >= 18 && file.read_exact_at(&mut tail, len - 4).is_ok() {
-        u64::from(u32::from_le_bytes(tail))
-    } else {
-        len.saturating_mul(4)
-    };
+    #[cfg(unix)]
+    let read_tail = |tail: &mut [u8; 4]| std::os::unix::fs::FileExt::read_exact_at(file, tail, len - 4).is_ok();
+    #[cfg(not(unix))]
+    let read_tail = |_: &mut [u8; 4]| false;
+    let isize =
+        if len >= 18 && read_tail(&mut tail) { u64::from(u32::from_le_bytes(tail)) } else { len.saturating_mul(4) };
     usize::try_from(isize.min(most)).unwrap_or(usize::MAX)
 }
 

@@ -15,7 +15,9 @@
 //! ([`DeviceStats::slow_backing`]). At most `queue_depth` requests are served at once (one event
 //! loop thread per slot); the others wait in the kernel's queue, as on a device.
 
+#[cfg(feature = "native")]
 use std::fs::File;
+#[cfg(feature = "native")]
 use std::os::unix::fs::FileExt;
 use std::path::Path;
 use std::time::Duration;
@@ -105,6 +107,7 @@ impl DeviceStats {
     }
 }
 
+#[cfg(feature = "native")]
 /// Reads the file at `path` once into the OS page cache (as a device's mount does first): called before
 /// a memory cap is applied, so that the device's backing bytes are not charged to it.
 pub fn warm_path(path: &Path) -> Result<()> {
@@ -113,6 +116,7 @@ pub fn warm_path(path: &Path) -> Result<()> {
     warm(&file, len).at(path)
 }
 
+#[cfg(feature = "native")]
 /// Reads a file once, sequentially, into the OS page cache.
 pub(super) fn warm(file: &File, len: u64) -> std::io::Result<()> {
     let mut buf = vec![0u8; 1 << 20];

@@ -22,6 +22,7 @@
 pub mod device;
 #[cfg(feature = "device")]
 pub mod fuse;
+pub mod hosted;
 pub mod lru;
 pub mod observer;
 pub mod os;
@@ -76,10 +77,17 @@ pub fn open_on(
             path.display()
         )));
     }
+    #[cfg(not(feature = "native"))]
+    return Err(Error::InvalidArgument(format!(
+        "{}: files are opened by the host in this build (pager::memory), not by path",
+        path.display()
+    )));
+    #[cfg(feature = "native")]
     if remote::is_remote(path) {
         let location = path.to_string_lossy();
         return Ok(Arc::new(remote::RemoteFile::open(&location, remote::RemoteOptions::from_env()?)?));
     }
+    #[cfg(feature = "native")]
     Ok(match kind {
         SourceKind::Map => Arc::new(source::MappedFile::open(path)?),
         SourceKind::Read => Arc::new(source::ReadFile::open(path)?),
@@ -407,6 +415,19 @@ fn pages_of(e: Extent) -> (u64, u64) {
     (e.offset / PAGE_BYTES, (e.offset + e.bytes).div_ceil(PAGE_BYTES))
 }
 
+/// Runs `[p, q)` sorted, and merged where they touch or overlap.
+fn merge_runs(mut runs: Vec<(u64, u64)>) -> Vec<(u64, u64)> {
+    runs.sort_unstable();
+    let mut out: Vec<(u64, u64)> = Vec::with_capacity(runs.len());
+    for (p, q) in runs {
+        match out.last_mut() {
+            Some(last) if last.1 >= p => last.1 = last.1.max(q),
+            _ => out.push((p, q)),
+        }
+    }
+    out
+}
+
 fn extent_of(source: &dyn Source, table: &dyn BlockTable, id: u32) -> Result<Extent> {
     table.extent(id).ok_or_else(|| Error::BlockOutOfRange {
         path: source.path().to_path_buf(),
@@ -694,14 +715,7 @@ impl Pager {
         let mut blocks: Vec<Box<[T]>> =
             extents.iter().map(|e| bytemuck::zeroed_slice_box((e.bytes / record) as usize)).collect();
         // Page runs covering the blocks, merged where they touch.
-        let mut runs: Vec<(u64, u64)> = Vec::new();
-        for &e in &extents {
-            let (p, q) = pages_of(e);
-            match runs.last_mut() {
-                Some(last) if last.1 >= p => last.1 = last.1.max(q),
-                _ => runs.push((p, q)),
-            }
-        }
+        let runs = merge_runs(extents.iter().map(|&e| pages_of(e)).collect());
         self.source.read_page_runs(&runs, &mut |page, bytes| {
             let (lo, hi) = (page * PAGE_BYTES, page * PAGE_BYTES + bytes.len() as u64);
             // The first block ending after `lo`, then every block starting before `hi`.
@@ -727,6 +741,16 @@ impl Pager {
             f(id, block)?;
         }
         Ok(())
+    }
+
+    /// The byte ranges `[start, end)` of the file as stored that [`Self::read_blocks`] of `ids`
+    /// reads: what a host that supplies the bytes ([`hosted`]) fetches first. Ascending, pages
+    /// that touch merged, whole pages (the last may end at the file's end).
+    pub fn stored_ranges(&self, ids: &[u32]) -> Result<Vec<(u64, u64)>> {
+        let runs = merge_runs(ids.iter().map(|&id| self.extent(id).map(pages_of)).collect::<Result<_>>()?);
+        let out = merge_runs(self.source.stored_runs(&runs));
+        let len = self.source.len();
+        Ok(out.into_iter().map(|(p, q)| (p * PAGE_BYTES, (q * PAGE_BYTES).min(len))).filter(|r| r.0 < r.1).collect())
     }
 
     /// No readahead (see [`Source::advise_random`]).

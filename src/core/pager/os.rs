@@ -9,14 +9,19 @@ use crate::error::{Error, Result};
 /// Evicts `path` from the OS page cache (`posix_fadvise(DONTNEED)`), so the next reads fault.
 /// Pages still mapped by a live mapping stay: drop the mapping first.
 pub fn drop_from_page_cache(path: &Path) -> Result<()> {
-    use std::os::unix::io::AsRawFd;
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    // SAFETY: plain system call on a file descriptor we own for the duration of the call.
-    let rc = unsafe { libc::posix_fadvise(file.as_raw_fd(), 0, 0, libc::POSIX_FADV_DONTNEED) };
-    if rc != 0 {
-        return Err(Error::io(path, std::io::Error::from_raw_os_error(rc)));
+    #[cfg(not(feature = "native"))]
+    return Err(Error::InvalidArgument(format!("{}: no page cache to drop in this build", path.display())));
+    #[cfg(feature = "native")]
+    {
+        use std::os::unix::io::AsRawFd;
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        // SAFETY: plain system call on a file descriptor we own for the duration of the call.
+        let rc = unsafe { libc::posix_fadvise(file.as_raw_fd(), 0, 0, libc::POSIX_FADV_DONTNEED) };
+        if rc != 0 {
+            return Err(Error::io(path, std::io::Error::from_raw_os_error(rc)));
+        }
+        Ok(())
     }
-    Ok(())
 }
 
 /// A cgroup v1 memory limit on this process while the value lives, so that a cold run's page

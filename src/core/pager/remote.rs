@@ -20,18 +20,28 @@
 //! every request is signed (AWS Signature V4 as a presigned URL, by `rusty-s3`, fresh for each
 //! request); without them the object must be public.
 
+#[cfg(feature = "native")]
 use std::fs::File;
+#[cfg(feature = "native")]
 use std::io::Read;
+#[cfg(feature = "native")]
 use std::os::unix::fs::FileExt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+#[cfg(feature = "native")]
+use std::path::PathBuf;
+#[cfg(feature = "native")]
 use std::sync::atomic::{AtomicU64, Ordering};
+#[cfg(feature = "native")]
 use std::time::Duration;
 
 pub use super::source::RemoteStats;
 /// The cache's granule: pages of this many bytes, fetched and kept whole.
 pub use super::source::PAGE_BYTES;
+#[cfg(feature = "native")]
 use super::source::{check_range, Source, SourceKind};
-use crate::error::{Error, IoContext, Result};
+#[cfg(feature = "native")]
+use crate::error::IoContext;
+use crate::error::{Error, Result};
 
 /// Whether `path` names a remote file (`http://`, `https://` or `s3://`).
 pub fn is_remote(path: &Path) -> bool {
@@ -39,6 +49,7 @@ pub fn is_remote(path: &Path) -> bool {
     s.starts_with("http://") || s.starts_with("https://") || s.starts_with("s3://")
 }
 
+#[cfg(feature = "native")]
 /// The unsigned HTTP(S) address of a remote location (`s3://bucket/key` through its endpoint, as
 /// `s3` says).
 pub fn http_url(location: &str, s3: &S3Config) -> Result<String> {
@@ -55,6 +66,7 @@ pub fn http_url(location: &str, s3: &S3Config) -> Result<String> {
     })
 }
 
+#[cfg(feature = "native")]
 /// How a remote file is read.
 #[derive(Clone, Debug)]
 pub struct RemoteOptions {
@@ -80,6 +92,7 @@ pub struct RemoteOptions {
     pub s3: S3Config,
 }
 
+#[cfg(feature = "native")]
 /// Where and as whom `s3://` locations are read.
 #[derive(Clone, Default, PartialEq, Eq)]
 pub struct S3Config {
@@ -91,6 +104,7 @@ pub struct S3Config {
     pub credentials: Option<(String, String, Option<String>)>,
 }
 
+#[cfg(feature = "native")]
 impl std::fmt::Debug for S3Config {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         // The secret stays out of logs and error messages.
@@ -102,6 +116,7 @@ impl std::fmt::Debug for S3Config {
     }
 }
 
+#[cfg(feature = "native")]
 impl S3Config {
     /// From `AWS_ENDPOINT_URL_S3` / `AWS_ENDPOINT_URL`, `AWS_REGION` / `AWS_DEFAULT_REGION`
     /// (default `us-east-1`), `AWS_ACCESS_KEY_ID`, `AWS_SECRET_ACCESS_KEY`, `AWS_SESSION_TOKEN`.
@@ -123,6 +138,7 @@ impl S3Config {
     }
 }
 
+#[cfg(feature = "native")]
 /// Signs the requests of one S3 object.
 struct S3Signer {
     bucket: rusty_s3::Bucket,
@@ -130,6 +146,7 @@ struct S3Signer {
     credentials: rusty_s3::Credentials,
 }
 
+#[cfg(feature = "native")]
 impl S3Signer {
     /// A presigned GET of the object, valid for 15 minutes (made again for every request).
     fn url(&self) -> String {
@@ -140,6 +157,7 @@ impl S3Signer {
     }
 }
 
+#[cfg(feature = "native")]
 /// `s3://BUCKET/KEY` as its bucket and key.
 fn s3_parts(location: &str) -> Result<Option<(&str, &str)>> {
     let Some(rest) = location.strip_prefix("s3://") else { return Ok(None) };
@@ -149,6 +167,7 @@ fn s3_parts(location: &str) -> Result<Option<(&str, &str)>> {
     }
 }
 
+#[cfg(feature = "native")]
 /// The signer of `location` (an `s3://` one, with credentials), else `None`.
 fn s3_signer(location: &str, s3: &S3Config) -> Result<Option<S3Signer>> {
     let (Some((bucket, key)), Some((id, secret, token))) = (s3_parts(location)?, &s3.credentials) else {
@@ -168,6 +187,7 @@ fn s3_signer(location: &str, s3: &S3Config) -> Result<Option<S3Signer>> {
     Ok(Some(S3Signer { bucket, key: key.to_string(), credentials }))
 }
 
+#[cfg(feature = "native")]
 impl RemoteOptions {
     /// The defaults, with what the environment sets: `RELIEF_REMOTE_IN_FLIGHT` (requests at
     /// once), `RELIEF_REMOTE_COALESCE_KIB` (gap merged into one request, KiB) and
@@ -201,6 +221,7 @@ pub fn env_number(name: &str) -> Result<Option<u64>> {
     }
 }
 
+#[cfg(feature = "native")]
 impl Default for RemoteOptions {
     fn default() -> Self {
         RemoteOptions {
@@ -218,6 +239,7 @@ impl Default for RemoteOptions {
     }
 }
 
+#[cfg(feature = "native")]
 /// `$RELIEF_CACHE_DIR`, else `$XDG_CACHE_HOME/relief`, else `~/.cache/relief`.
 pub fn default_cache_dir() -> Option<PathBuf> {
     if let Some(d) = std::env::var_os("RELIEF_CACHE_DIR") {
@@ -229,6 +251,7 @@ pub fn default_cache_dir() -> Option<PathBuf> {
     std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".cache/relief"))
 }
 
+#[cfg(feature = "native")]
 #[derive(Default)]
 struct Counters {
     requests: AtomicU64,
@@ -237,6 +260,7 @@ struct Counters {
     cache_hit_pages: AtomicU64,
 }
 
+#[cfg(feature = "native")]
 /// A remote file of fixed length and ETag, read with range requests through a page cache.
 pub struct RemoteFile {
     client: Client,
@@ -251,6 +275,7 @@ pub struct RemoteFile {
     readahead_end: AtomicU64,
 }
 
+#[cfg(feature = "native")]
 /// The requests of one remote file: where it is, how to ask, what it was when opened.
 struct Client {
     location: String,
@@ -264,12 +289,14 @@ struct Client {
     counters: Counters,
 }
 
+#[cfg(feature = "native")]
 /// Why one attempt failed: worth retrying or not.
 enum Attempt {
     Retry(String),
     Fatal(Error),
 }
 
+#[cfg(feature = "native")]
 impl RemoteFile {
     /// Opens `location` with one request for its first bytes, which are cached.
     pub fn open(location: &str, options: RemoteOptions) -> Result<RemoteFile> {
@@ -400,6 +427,7 @@ impl RemoteFile {
     }
 }
 
+#[cfg(feature = "native")]
 impl Client {
     fn with_retries<T>(&self, mut f: impl FnMut(&Self) -> std::result::Result<T, Attempt>) -> Result<T> {
         let mut delay = self.options.backoff;
@@ -569,14 +597,17 @@ pub fn coalesce(runs: &mut [(u64, u64)], gap: u64, max: u64) -> Vec<(u64, u64)> 
     out
 }
 
+#[cfg(feature = "native")]
 fn header(resp: &ureq::http::Response<ureq::Body>, name: &str) -> Option<String> {
     resp.headers().get(name).and_then(|v| v.to_str().ok()).map(str::to_string)
 }
 
+#[cfg(feature = "native")]
 fn content_length(resp: &ureq::http::Response<ureq::Body>) -> Option<u64> {
     header(resp, "content-length")?.trim().parse().ok()
 }
 
+#[cfg(feature = "native")]
 /// `Content-Range: bytes a-b/len` → (a, b, len).
 fn content_range(resp: &ureq::http::Response<ureq::Body>) -> Option<(u64, u64, u64)> {
     let v = header(resp, "content-range")?;
@@ -587,6 +618,7 @@ fn content_range(resp: &ureq::http::Response<ureq::Body>) -> Option<(u64, u64, u
     (a <= b && b < total).then_some((a, b, total))
 }
 
+#[cfg(feature = "native")]
 impl Source for RemoteFile {
     fn path(&self) -> &Path {
         &self.path
@@ -656,6 +688,7 @@ impl Source for RemoteFile {
     }
 }
 
+#[cfg(feature = "native")]
 /// The local cache of a remote file's pages: a sparse file of the remote file's length (pages at
 /// their own offsets) and a map of one byte per page (1: present), in a directory named by the
 /// location's hash, with the length and ETag it holds pages of.
@@ -675,6 +708,7 @@ pub struct DiskCache {
     _temp: Option<tempfile::TempDir>,
 }
 
+#[cfg(feature = "native")]
 #[derive(serde::Serialize, serde::Deserialize, PartialEq, Debug)]
 struct CacheMeta {
     location: String,
@@ -682,6 +716,7 @@ struct CacheMeta {
     etag: Option<String>,
 }
 
+#[cfg(feature = "native")]
 impl DiskCache {
     /// A cache of a `len`-byte file in a temporary directory, removed with it.
     fn temporary(location: &str, len: u64) -> Result<DiskCache> {
@@ -845,6 +880,7 @@ impl DiskCache {
     }
 }
 
+#[cfg(feature = "native")]
 fn have_count(have: &File) -> u64 {
     let mut buf = vec![0u8; 1 << 16];
     let (mut at, mut n) = (0u64, 0u64);
@@ -858,7 +894,7 @@ fn have_count(have: &File) -> u64 {
     n
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "native"))]
 mod tests {
     use super::*;
 

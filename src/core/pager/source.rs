@@ -12,16 +12,24 @@
 //! ([`Source::read_page_runs`]), what the network or the device under it has cost. The pager asks
 //! these; nothing above it looks beneath a source.
 
+#[cfg(feature = "native")]
 use std::fs::File;
+#[cfg(feature = "native")]
 use std::os::fd::AsRawFd;
+#[cfg(feature = "native")]
 use std::os::unix::fs::FileExt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
+#[cfg(feature = "native")]
+use std::path::PathBuf;
 
+#[cfg(feature = "native")]
 use memmap2::Mmap;
 use serde::Serialize;
 
 use super::device::{DeviceSpec, DeviceStats};
-use crate::error::{Error, IoContext, Result};
+#[cfg(feature = "native")]
+use crate::error::IoContext;
+use crate::error::{Error, Result};
 
 /// The page every source is read in: 4 KiB, the OS page and the unit of relief's files, of a
 /// remote file's cache and of a sparse file's page map.
@@ -87,6 +95,12 @@ pub trait Source: Send + Sync {
         }
         Ok(())
     }
+    /// The page runs of the file as stored that hold pages `runs` of this one (`[p, q)`,
+    /// ascending): what a host fetches for them ([`super::hosted`]). The same runs here; a file
+    /// stored with pages left out names its stored pages (pages left out are in none).
+    fn stored_runs(&self, runs: &[(u64, u64)]) -> Vec<(u64, u64)> {
+        runs.to_vec()
+    }
     /// What reading this source has cost over a network, where it reads over one.
     fn network(&self) -> Option<RemoteStats> {
         None
@@ -120,6 +134,7 @@ pub struct RemoteStats {
     pub cache_hit_pages: u64,
 }
 
+#[cfg(feature = "native")]
 fn fadvise(path: &Path, file: &File, advice: libc::c_int) -> Result<()> {
     // SAFETY: posix_fadvise only reads the descriptor, which `file` keeps open for the call.
     let rc = unsafe { libc::posix_fadvise(file.as_raw_fd(), 0, 0, advice) };
@@ -137,6 +152,7 @@ pub(crate) fn check_range(path: &Path, len: u64, offset: u64, bytes: usize) -> R
     }
 }
 
+#[cfg(feature = "native")]
 /// A file mapped read-only.
 pub struct MappedFile {
     path: PathBuf,
@@ -145,6 +161,7 @@ pub struct MappedFile {
     map: Mmap,
 }
 
+#[cfg(feature = "native")]
 impl MappedFile {
     /// Maps `path` read-only, records it for the SIGBUS report, and checks the map covers the
     /// whole file.
@@ -180,6 +197,7 @@ impl MappedFile {
     }
 }
 
+#[cfg(feature = "native")]
 impl Source for MappedFile {
     fn path(&self) -> &Path {
         &self.path
@@ -222,6 +240,7 @@ impl Source for MappedFile {
     }
 }
 
+#[cfg(feature = "native")]
 /// A logical region mapped over anonymous zero pages, with runs of a file mapped over them (a
 /// file stored with pages left out, [`super::sparse`]).
 pub struct RunMap {
@@ -229,12 +248,15 @@ pub struct RunMap {
     len: usize,
 }
 
+#[cfg(feature = "native")]
 // SAFETY: the region is read-only for its whole life and owned by this value; only `Drop`
 // unmaps it, so sharing the address between threads shares only reads.
 unsafe impl Send for RunMap {}
+#[cfg(feature = "native")]
 // SAFETY: as for `Send`: every access through `&RunMap` is a read of a read-only mapping.
 unsafe impl Sync for RunMap {}
 
+#[cfg(feature = "native")]
 impl RunMap {
     /// Reserves `logical_len` bytes of zero pages and maps every run of `file` (`physical_len`
     /// bytes long) over them.
@@ -299,7 +321,7 @@ impl RunMap {
     }
 
     /// `madvise` over the whole region (`MADV_RANDOM`, `MADV_DONTNEED`).
-    pub fn advise(&self, advice: libc::c_int, path: &Path) -> Result<()> {
+    pub fn advise(&self, advice: i32, path: &Path) -> Result<()> {
         // SAFETY: advice on our own mapping; DONTNEED on a read-only shared file mapping or on
         // anonymous zero pages changes nothing that is read (they read back the same).
         if unsafe { libc::madvise(self.addr, self.len, advice) } != 0 {
@@ -309,6 +331,7 @@ impl RunMap {
     }
 }
 
+#[cfg(feature = "native")]
 impl Drop for RunMap {
     fn drop(&mut self) {
         // SAFETY: the region was mapped by `new` and is unmapped once, here.
@@ -316,6 +339,24 @@ impl Drop for RunMap {
     }
 }
 
+/// Without an operating system's maps there are no run maps: [`Source::map_runs`] is `None`.
+#[cfg(not(feature = "native"))]
+pub enum RunMap {}
+
+#[cfg(not(feature = "native"))]
+impl RunMap {
+    /// The logical bytes (never called: no value exists).
+    pub fn bytes(&self) -> &[u8] {
+        match *self {}
+    }
+
+    /// Never called: no value exists.
+    pub fn advise(&self, _advice: i32, _path: &Path) -> Result<()> {
+        match *self {}
+    }
+}
+
+#[cfg(feature = "native")]
 /// A file read with positioned reads.
 pub struct ReadFile {
     path: PathBuf,
@@ -323,6 +364,7 @@ pub struct ReadFile {
     len: u64,
 }
 
+#[cfg(feature = "native")]
 impl ReadFile {
     pub fn open(path: &Path) -> Result<ReadFile> {
         ReadFile::open_as(path, path)
@@ -336,6 +378,7 @@ impl ReadFile {
     }
 }
 
+#[cfg(feature = "native")]
 impl Source for ReadFile {
     fn path(&self) -> &Path {
         &self.path
@@ -363,7 +406,7 @@ impl Source for ReadFile {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "native"))]
 mod tests {
     use super::*;
 

@@ -190,6 +190,7 @@ impl Source for SparseFile {
 
     fn advise_random(&self) -> Result<()> {
         if let Some(m) = &self.mapped {
+            #[cfg(feature = "native")]
             m.advise(libc::MADV_RANDOM, &self.path)?;
         }
         self.inner.advise_random()
@@ -197,6 +198,7 @@ impl Source for SparseFile {
 
     fn evict(&self) -> Result<()> {
         if let Some(m) = &self.mapped {
+            #[cfg(feature = "native")]
             m.advise(libc::MADV_DONTNEED, &self.path)?;
         }
         self.inner.evict()
@@ -209,6 +211,10 @@ impl Source for SparseFile {
         Ok((first..end)
             .map(|p| self.map.physical(p).is_none_or(|q| physical.get(q as usize).copied().unwrap_or(false)))
             .collect())
+    }
+
+    fn stored_runs(&self, runs: &[(u64, u64)]) -> Vec<(u64, u64)> {
+        self.inner.stored_runs(&self.map.physical_runs(runs))
     }
 
     /// The stored pages of `runs` are read from the physical file in one call (so a remote file

@@ -3,6 +3,7 @@
 //! ([`convert`]), and the reports that read a terrain file back ([`inspect`]).
 
 pub mod bounds;
+#[cfg(feature = "native")]
 pub mod convert;
 pub mod fill;
 pub mod inspect;

@@ -260,6 +260,89 @@ impl Settle {
     }
 }
 
+/// What the fetcher keeps between plans: which blocks were asked for, which records are
+/// effective. It turns misses into blocks to read, and read blocks into an arrival.
+struct Planner {
+    options: ProgressiveOptions,
+    asked: Vec<bool>,
+    settle: Settle,
+}
+
+impl Planner {
+    /// The blocks to read for `misses` (see [`plan_blocks`]), marked asked.
+    fn plan(&mut self, misses: &[u64]) -> Vec<u32> {
+        struct Go<'a> {
+            asked: &'a mut [bool],
+            misses: &'a [u64],
+            lookahead: u32,
+        }
+        impl LayoutVisitor for Go<'_> {
+            type Output = Vec<u64>;
+            fn visit<L: Layout>(self, layout: &L) -> Vec<u64> {
+                plan_blocks(layout, self.asked, self.misses, self.lookahead)
+            }
+        }
+        let layout = self.settle.layout.clone();
+        let wanted = layout.visit(Go { asked: &mut self.asked, misses, lookahead: self.options.lookahead_levels });
+        wanted.iter().filter_map(|&b| u32::try_from(b).ok()).collect()
+    }
+
+    /// Reads blocks `ids` through the pager and settles which records they make effective.
+    fn read(&mut self, terrain: &TerrainFile, round: u64, ids: &[u32]) -> Arrival {
+        let mut staged: Vec<(u64, Box<[Record]>)> = Vec::with_capacity(ids.len());
+        let result = terrain.pager().read_blocks(ids, |b, records: Box<[Record]>| {
+            staged.push((b as u64, records));
+            Ok(())
+        });
+        match result {
+            Ok(()) => {
+                let counts: Vec<(u64, u64)> = staged.iter().map(|(b, records)| (*b, records.len() as u64)).collect();
+                let effective = self.settle.add(&counts);
+                Arrival::Blocks { round, blocks: staged, effective }
+            }
+            Err(e) => Arrival::Failed(e),
+        }
+    }
+}
+
+/// Who reads the blocks that frames missed.
+enum Fetch {
+    /// A fetcher thread, reading through the pager (which waits on the network there).
+    Thread {
+        plans: Option<Sender<Plan>>,
+        arrivals: Receiver<Arrival>,
+        /// Detached when dropped.
+        handle: Option<JoinHandle<()>>,
+    },
+    /// The host fetches the bytes ([`Progressive::take_request`], [`Progressive::deliver`]);
+    /// plans wait here until it asks.
+    Hosted { planner: Box<Planner>, pending: Vec<Plan> },
+}
+
+/// Blocks for the host to fetch (a [`crate::pager::hosted::HostedFile`]'s), with the byte
+/// ranges of the file that hold them.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct HostedRequest {
+    round: u64,
+    plans: u64,
+    blocks: Vec<u32>,
+    /// `[start, end)` byte ranges of the file as stored: fetch each (one `Range` request, or
+    /// several), insert the bytes, then [`Progressive::deliver`] this request.
+    pub ranges: Vec<(u64, u64)>,
+}
+
+impl HostedRequest {
+    /// The causal round its data will carry.
+    pub fn round(&self) -> u64 {
+        self.round
+    }
+
+    /// Bytes its ranges hold.
+    pub fn bytes(&self) -> u64 {
+        self.ranges.iter().map(|&(a, b)| b - a).sum()
+    }
+}
+
 /// A remote terrain's records as far as they have arrived, refined without waiting.
 pub struct Progressive {
     terrain: Arc<TerrainFile>,
@@ -268,10 +351,7 @@ pub struct Progressive {
     fresh: Vec<AtomicU64>,
     representatives: Mutex<Vec<u64>>,
     round: u64,
-    plans: Option<Sender<Plan>>,
-    arrivals: Receiver<Arrival>,
-    /// The fetch thread (detached when dropped).
-    fetcher: Option<JoinHandle<()>>,
+    fetch: Fetch,
     /// Plans sent and not yet answered.
     outstanding: u64,
 }
@@ -280,6 +360,17 @@ impl Progressive {
     /// Starts on `terrain` (remote) with the blocks its cache already holds (the opening range,
     /// and what earlier runs fetched), and a fetcher thread.
     pub fn new(terrain: Arc<TerrainFile>, options: ProgressiveOptions) -> Result<Progressive> {
+        Progressive::start(terrain, options, false)
+    }
+
+    /// [`Self::new`] without a thread: the host fetches what [`Self::take_request`] asks for
+    /// (into the terrain's [`crate::pager::hosted::HostedFile`]) and hands it back with
+    /// [`Self::deliver`]. For hosts that cannot block (a web page's event loop).
+    pub fn hosted(terrain: Arc<TerrainFile>, options: ProgressiveOptions) -> Result<Progressive> {
+        Progressive::start(terrain, options, true)
+    }
+
+    fn start(terrain: Arc<TerrainFile>, options: ProgressiveOptions, hosted: bool) -> Result<Progressive> {
         if !terrain.is_remote() {
             return Err(Error::InvalidArgument(format!(
                 "{}: progressive refinement needs a remote terrain",
@@ -294,9 +385,8 @@ impl Progressive {
             fresh: (0..n_blocks.div_ceil(64)).map(|_| AtomicU64::new(0)).collect(),
             representatives: Mutex::new(Vec::new()),
             round: 1,
-            plans: None,
-            arrivals: channel().1,
-            fetcher: None,
+            // Until the fetcher is started below.
+            fetch: Fetch::Thread { plans: None, arrivals: channel().1, handle: None },
             outstanding: 0,
             terrain: terrain.clone(),
         };
@@ -321,17 +411,19 @@ impl Progressive {
         let effective = settle.add(&counts);
         p.insert(have, effective);
         // The fetcher asks for nothing that is here.
-        let asked = settle.here.clone();
-        let (plan_tx, plan_rx) = channel::<Plan>();
-        let (arrive_tx, arrive_rx) = channel::<Arrival>();
-        let t = terrain.clone();
-        let handle = std::thread::Builder::new()
-            .name("relief-fetch".into())
-            .spawn(move || fetcher(t, options, asked, settle, plan_rx, arrive_tx))
-            .map_err(Error::thread("fetch"))?;
-        p.plans = Some(plan_tx);
-        p.arrivals = arrive_rx;
-        p.fetcher = Some(handle);
+        let planner = Planner { options, asked: settle.here.clone(), settle };
+        p.fetch = if hosted {
+            Fetch::Hosted { planner: Box::new(planner), pending: Vec::new() }
+        } else {
+            let (plan_tx, plan_rx) = channel::<Plan>();
+            let (arrive_tx, arrive_rx) = channel::<Arrival>();
+            let t = terrain.clone();
+            let handle = std::thread::Builder::new()
+                .name("relief-fetch".into())
+                .spawn(move || fetcher(t, planner, plan_rx, arrive_tx))
+                .map_err(Error::thread("fetch"))?;
+            Fetch::Thread { plans: Some(plan_tx), arrivals: arrive_rx, handle: Some(handle) }
+        };
         // The corners are strip vertices of every frame (their heights are drawn).
         let grid = h.grid();
         let corners: Vec<u64> = grid.corners().iter().map(|&(x, y)| terrain.layout().index(x, y)).collect();
@@ -347,11 +439,56 @@ impl Progressive {
     }
 
     fn send(&mut self, plan: Plan) {
-        if let Some(tx) = &self.plans {
-            if tx.send(plan).is_ok() {
+        match &mut self.fetch {
+            Fetch::Thread { plans: Some(tx), .. } => {
+                if tx.send(plan).is_ok() {
+                    self.outstanding += 1;
+                }
+            }
+            Fetch::Thread { plans: None, .. } => {}
+            Fetch::Hosted { pending, .. } => {
+                pending.push(plan);
                 self.outstanding += 1;
             }
         }
+    }
+
+    /// What the host should fetch next (every plan since the last call, as one round), or
+    /// `None` when there is nothing to fetch. Only for [`Self::hosted`]; the ranges are bytes
+    /// of the file as stored.
+    pub fn take_request(&mut self) -> Result<Option<HostedRequest>> {
+        let Fetch::Hosted { planner, pending } = &mut self.fetch else { return Ok(None) };
+        if pending.is_empty() {
+            return Ok(None);
+        }
+        let plans = pending.len() as u64;
+        let round = pending.iter().map(|p| p.round).max().unwrap_or(1);
+        let misses: Vec<u64> = pending.drain(..).flat_map(|p| p.misses).collect();
+        let blocks = planner.plan(&misses);
+        if blocks.is_empty() {
+            // Everything asked for is here or on its way: these plans are answered.
+            self.outstanding = self.outstanding.saturating_sub(plans);
+            return Ok(None);
+        }
+        let ranges = self.terrain.pager().stored_ranges(&blocks)?;
+        Ok(Some(HostedRequest { round, plans, blocks, ranges }))
+    }
+
+    /// Takes the blocks of `request` once the host has inserted every one of its ranges: read
+    /// through the pager (counted and observed there), settled, effective from the next frame.
+    pub fn deliver(&mut self, request: HostedRequest) -> Result<()> {
+        let Fetch::Hosted { planner, .. } = &mut self.fetch else {
+            return Err(Error::InvalidArgument("a request delivered to a terrain with its own fetcher".into()));
+        };
+        let arrival = planner.read(&self.terrain, request.round, &request.blocks);
+        // Every merged plan is answered (`arrived` counts the one carrying the blocks).
+        self.outstanding = self.outstanding.saturating_sub(request.plans.saturating_sub(1));
+        self.arrived(arrival)
+    }
+
+    /// Plans sent and not yet answered (for a host: fetches still to make or in flight).
+    pub fn outstanding(&self) -> u64 {
+        self.outstanding
     }
 
     /// Makes fetched blocks resident and sets the bits of the records that became effective.
@@ -377,10 +514,11 @@ impl Progressive {
 
     /// Takes what has arrived (never waits); a failed fetch is the error.
     pub fn absorb(&mut self) -> Result<()> {
-        while let Ok(a) = self.arrivals.try_recv() {
+        loop {
+            let Fetch::Thread { arrivals, .. } = &self.fetch else { return Ok(()) };
+            let Ok(a) = arrivals.try_recv() else { return Ok(()) };
             self.arrived(a)?;
         }
-        Ok(())
     }
 
     fn arrived(&mut self, a: Arrival) -> Result<()> {
@@ -401,10 +539,11 @@ impl Progressive {
     /// Waits up to `timeout` for an arrival and takes it; `false` when none came (or nothing is
     /// outstanding).
     pub fn wait_arrival(&mut self, timeout: Duration) -> Result<bool> {
+        let Fetch::Thread { arrivals, .. } = &self.fetch else { return Ok(false) };
         if self.outstanding == 0 {
             return Ok(false);
         }
-        match self.arrivals.recv_timeout(timeout) {
+        match arrivals.recv_timeout(timeout) {
             Ok(a) => {
                 self.arrived(a)?;
                 self.absorb()?;
@@ -480,23 +619,16 @@ impl Drop for Progressive {
         // Closing the plan channel ends the fetcher after its current fetch. It is not waited
         // for: a fetch from a server that stopped answering can take its whole timeout and
         // retries, and closing a window must not. What it still fetches goes to the cache only.
-        self.plans = None;
-        drop(self.fetcher.take());
+        if let Fetch::Thread { plans, handle, .. } = &mut self.fetch {
+            *plans = None;
+            drop(handle.take());
+        }
     }
 }
 
-/// Records from their file bytes (a whole number of records).
 /// The fetcher thread: turns plans into blocks (the missed ones, their look-ahead, or the
-/// missing ancestors of records that are here but not effective), fetches them, hands them over.
-fn fetcher(
-    terrain: Arc<TerrainFile>,
-    options: ProgressiveOptions,
-    mut asked: Vec<bool>,
-    mut settle: Settle,
-    plans: Receiver<Plan>,
-    arrivals: Sender<Arrival>,
-) {
-    let layout = terrain.layout().clone();
+/// missing ancestors of records that are here but not effective), reads them, hands them over.
+fn fetcher(terrain: Arc<TerrainFile>, mut planner: Planner, plans: Receiver<Plan>, arrivals: Sender<Arrival>) {
     while let Ok(first) = plans.recv() {
         // Plans queued behind a fetch are served together: one round of requests.
         let mut plan_count = 1u64;
@@ -507,35 +639,8 @@ fn fetcher(
             round = round.max(more.round);
             misses.extend(more.misses);
         }
-        let wanted = {
-            struct Go<'a> {
-                asked: &'a mut [bool],
-                misses: &'a [u64],
-                lookahead: u32,
-            }
-            impl LayoutVisitor for Go<'_> {
-                type Output = Vec<u64>;
-                fn visit<L: Layout>(self, layout: &L) -> Vec<u64> {
-                    plan_blocks(layout, self.asked, self.misses, self.lookahead)
-                }
-            }
-            layout.visit(Go { asked: &mut asked, misses: &misses, lookahead: options.lookahead_levels })
-        };
-        // Decoded here, so that the refining thread only takes the blocks over.
-        let ids: Vec<u32> = wanted.iter().filter_map(|&b| u32::try_from(b).ok()).collect();
-        let mut staged: Vec<(u64, Box<[Record]>)> = Vec::with_capacity(ids.len());
-        let result = terrain.pager().read_blocks(&ids, |b, records: Box<[Record]>| {
-            staged.push((b as u64, records));
-            Ok(())
-        });
-        let arrival = match result {
-            Ok(()) => {
-                let counts: Vec<(u64, u64)> = staged.iter().map(|(b, records)| (*b, records.len() as u64)).collect();
-                let effective = settle.add(&counts);
-                Arrival::Blocks { round, blocks: staged, effective }
-            }
-            Err(e) => Arrival::Failed(e),
-        };
+        let ids = planner.plan(&misses);
+        let arrival = planner.read(&terrain, round, &ids);
         let failed = matches!(arrival, Arrival::Failed(_));
         if arrivals.send(arrival).is_err() {
             return;

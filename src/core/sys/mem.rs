@@ -31,13 +31,18 @@ pub fn rss_bytes() -> Option<u64> {
 /// Page faults of this process so far: `(major, minor)` from `getrusage`. Major faults read
 /// from disk; minor ones map a page already in memory (including readahead).
 pub fn page_faults() -> (u64, u64) {
-    // SAFETY: getrusage writes one `rusage` into the zeroed value we pass and reads nothing else.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: as above: one `rusage`, ours, written.
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
-        return (0, 0);
+    #[cfg(not(feature = "native"))]
+    return (0, 0);
+    #[cfg(feature = "native")]
+    {
+        // SAFETY: getrusage writes one `rusage` into the zeroed value we pass and reads nothing else.
+        let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+        // SAFETY: as above: one `rusage`, ours, written.
+        if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) } != 0 {
+            return (0, 0);
+        }
+        (usage.ru_majflt.max(0) as u64, usage.ru_minflt.max(0) as u64)
     }
-    (usage.ru_majflt.max(0) as u64, usage.ru_minflt.max(0) as u64)
 }
 
 /// Samples `RssAnon` every few milliseconds on a background thread until finished.

@@ -6,6 +6,7 @@ pub mod atomic_file;
 pub mod cancel;
 pub mod mem;
 pub mod progress;
+#[cfg(feature = "native")]
 pub mod scratch;
 pub mod sigbus;
 

@@ -26,6 +26,7 @@ pub fn note_mapped(path: &Path) {
     PATH_LEN.store(bytes.len(), Ordering::SeqCst);
 }
 
+#[cfg(feature = "native")]
 extern "C" fn on_sigbus(_signal: libc::c_int) {
     fn put(bytes: &[u8]) {
         // SAFETY: write(2) on stderr with a valid buffer; async-signal-safe.
@@ -46,6 +47,8 @@ extern "C" fn on_sigbus(_signal: libc::c_int) {
 
 /// Installs the SIGBUS handler (process-wide; for binaries).
 pub fn install() {
+    // Without an operating system there is no signal to catch.
+    #[cfg(feature = "native")]
     // SAFETY: a zeroed sigaction with a plain handler and an empty mask is valid; the handler
     // is async-signal-safe (see the module documentation).
     unsafe {
