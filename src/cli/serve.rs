@@ -1,6 +1,7 @@
 //! `relief serve`: terrain files over HTTP/1.1 with byte ranges, so that a terrain can be read
 //! remotely (`http://…` in place of a FILE) and remote reading benchmarked, optionally with an
-//! emulated round trip. The server is the library's ([`relief::pager::serve`]).
+//! emulated round trip; with `--viewer`, the web viewer beside them (src/web, built by
+//! tools/web.sh), so a browser flies them. The server is the library's ([`relief::pager::serve`]).
 
 use std::net::{IpAddr, SocketAddr};
 use std::path::PathBuf;
@@ -28,6 +29,36 @@ pub struct Args {
     /// request costs it once; concurrent requests wait concurrently).
     #[arg(long, value_name = "MS", default_value_t = 0.0)]
     pub latency_ms: f64,
+    /// Also serve the web viewer (index.html and its wasm, built by tools/web.sh) at `/`, and print
+    /// a link that opens each terrain in it (http://HOST:PORT/#NAME).
+    #[arg(long)]
+    pub viewer: bool,
+    /// Where the built viewer is (default: $RELIEF_VIEWER_DIR, else target/viewer beside the
+    /// build of this binary, where tools/web.sh puts it).
+    #[arg(long, value_name = "DIR", requires = "viewer")]
+    pub viewer_dir: Option<PathBuf>,
+}
+
+/// The viewer's files: what tools/web.sh builds.
+pub const VIEWER_FILES: [&str; 3] = ["index.html", "relief_web.js", "relief_web_bg.wasm"];
+
+/// Where the built viewer is: `given`, else $RELIEF_VIEWER_DIR, else `target/viewer` (the
+/// binary is `target/<profile>/relief`).
+pub fn viewer_dir(given: Option<PathBuf>) -> anyhow::Result<PathBuf> {
+    let dir = match given.or_else(|| std::env::var_os("RELIEF_VIEWER_DIR").map(PathBuf::from)) {
+        Some(d) => d,
+        None => {
+            let exe = std::env::current_exe()?;
+            let target = exe.parent().and_then(|p| p.parent()).map(|p| p.join("viewer"));
+            target.ok_or_else(|| anyhow::anyhow!("{}: cannot tell where target/ is", exe.display()))?
+        }
+    };
+    for f in VIEWER_FILES {
+        if !dir.join(f).is_file() {
+            bail!("{}: no {f} (the web viewer is not built there); build it with `bash tools/web.sh`", dir.display());
+        }
+    }
+    Ok(dir)
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -49,10 +80,24 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         files.push((name.to_string(), path.clone()));
     }
     let names: Vec<String> = files.iter().map(|(n, _)| n.clone()).collect();
+    if a.viewer {
+        let dir = viewer_dir(a.viewer_dir.clone())?;
+        for f in VIEWER_FILES {
+            if names.iter().any(|n| n == f) {
+                bail!("{f}: a served file has the name of one of the viewer's");
+            }
+            files.push((f.to_string(), dir.join(f)));
+        }
+    }
     let options = ServeOptions { latency: Duration::from_secs_f64(a.latency_ms / 1000.0), ..Default::default() };
     let server = Server::start(files, SocketAddr::new(a.bind, a.port), options)?;
     for name in &names {
-        println!("{}", server.url(name));
+        if a.viewer {
+            // The page reads the name after '#' relative to itself.
+            println!("{}#{}", server.url(""), name);
+        } else {
+            println!("{}", server.url(name));
+        }
     }
     if a.bind.is_unspecified() {
         eprintln!("listening on every interface, port {}; Ctrl-C to stop", server.addr().port());

@@ -23,6 +23,13 @@
 //!   `Content-Range` says which. A `Range` of another unit or of invalid syntax is ignored (200,
 //!   the whole file), as is a `Range` on a `HEAD` (ranges are defined for `GET` only) and one
 //!   whose `If-Range` is not the current ETag.
+//! - Browsers (the web viewer, `src/web`): every answer allows any origin to read it and its
+//!   `Content-Range`, `Content-Length` and `ETag` (CORS); an `OPTIONS` preflight is a 204 that
+//!   allows `GET`/`HEAD` with `Range`, `If-Match` and `If-Range`. `Content-Type` follows the
+//!   name's extension (`.html`, `.js`, `.wasm`, `.png`, `.json`; else octets); `/` is
+//!   `index.html` where one is served.
+//! - Every `GET` and `HEAD` is logged ([`Server::log`]: name, status, byte range), for tests that
+//!   check what a client asked.
 //! - `If-Match`: when present and none of its tags is the current ETag (strong comparison), 412.
 //! - Keep-alive: requests are read one after another on a connection (pipelining works) until
 //!   the client closes or asks `Connection: close` (HTTP/1.0: unless it asks `keep-alive`).
@@ -110,9 +117,26 @@ struct Shared {
     stop: AtomicBool,
     /// The open connections: a handle on each socket (to shut it down on stop) and its thread.
     open: Mutex<HashMap<u64, (TcpStream, JoinHandle<()>)>>,
+    log: Mutex<Vec<Logged>>,
+}
+
+/// One `GET` or `HEAD` as answered.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Logged {
+    /// The name asked for (`""` for `/`).
+    pub name: String,
+    pub method: String,
+    pub status: u16,
+    /// Body bytes `[start, end)` of the file sent (`None`: no body from the file).
+    pub range: Option<(u64, u64)>,
 }
 
 impl Shared {
+    fn note(&self, req: &Request, status: u16, range: Option<(u64, u64)>) {
+        let entry = Logged { name: req.name.clone(), method: req.method.clone(), status, range };
+        self.log.lock().unwrap_or_else(|e| e.into_inner()).push(entry);
+    }
+
     fn open(&self) -> MutexGuard<'_, HashMap<u64, (TcpStream, JoinHandle<()>)>> {
         // A panic while holding the lock leaves the map usable: take it anyway.
         self.open.lock().unwrap_or_else(|e| e.into_inner())
@@ -157,6 +181,7 @@ impl Server {
             connections: AtomicU64::new(0),
             stop: AtomicBool::new(false),
             open: Mutex::new(HashMap::new()),
+            log: Mutex::new(Vec::new()),
         });
         let s = shared.clone();
         let accept = std::thread::Builder::new()
@@ -193,6 +218,12 @@ impl Server {
     /// Connections accepted so far (keep-alive reuse shows as fewer connections than requests).
     pub fn connections(&self) -> u64 {
         self.shared.connections.load(Ordering::SeqCst)
+    }
+
+    /// Every `GET` and `HEAD` answered so far, in the order answered (faulted ones too, with
+    /// the status sent, or 0 for a dropped connection).
+    pub fn log(&self) -> Vec<Logged> {
+        self.shared.log.lock().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
     /// The faults to inject, shared with the running server.
@@ -525,7 +556,26 @@ fn percent_encode(s: &str) -> String {
 
 /// The first line and the headers every answer has.
 fn status_head(status: u16, reason: &str) -> String {
-    format!("HTTP/1.1 {status} {reason}\r\nDate: {}\r\nServer: relief\r\n", http_date(SystemTime::now()))
+    format!("HTTP/1.1 {status} {reason}\r\nDate: {}\r\nServer: relief\r\n{CORS}", http_date(SystemTime::now()))
+}
+
+/// On every answer: any page may read it, ranges and validators included (the web viewer reads
+/// terrains from other origins, and needs `Content-Range` to learn a file's length).
+const CORS: &str =
+    "Access-Control-Allow-Origin: *\r\nAccess-Control-Expose-Headers: Content-Range, Content-Length, ETag, Accept-Ranges\r\n";
+
+/// The media type of a served name, by its extension (a module script and `WebAssembly`'s
+/// streaming compile insist on theirs).
+fn content_type(name: &str) -> &'static str {
+    let ext = name.rsplit_once('.').map(|(_, e)| e.to_ascii_lowercase()).unwrap_or_default();
+    match ext.as_str() {
+        "html" => "text/html; charset=utf-8",
+        "js" => "text/javascript; charset=utf-8",
+        "wasm" => "application/wasm",
+        "png" => "image/png",
+        "json" => "application/json",
+        _ => "application/octet-stream",
+    }
 }
 
 /// Ends a head: the connection header where it is not the version's default, the blank line.
@@ -628,11 +678,22 @@ fn answer(shared: &Shared, req: &Request, keep: bool, out: &mut impl Write) -> i
     let head_only = match req.method.as_str() {
         "GET" => false,
         "HEAD" => true,
+        "OPTIONS" => {
+            // A CORS preflight (a page's `fetch` with a `Range` the browser does not count as
+            // simple): allowed, and remembered for a day.
+            let mut head = status_head(204, "No Content");
+            head.push_str(
+                "Access-Control-Allow-Methods: GET, HEAD, OPTIONS\r\nAccess-Control-Allow-Headers: Range, If-Match, If-Range\r\nAccess-Control-Max-Age: 86400\r\nContent-Length: 0\r\n",
+            );
+            end_head(&mut head, keep, req.minor);
+            out.write_all(head.as_bytes())?;
+            return Ok(next);
+        }
         _ => {
             let mut head = status_head(405, "Method Not Allowed");
-            let body = "405 Method Not Allowed: only GET and HEAD\n";
+            let body = "405 Method Not Allowed: only GET and HEAD (and OPTIONS)\n";
             head.push_str(&format!(
-                "Allow: GET, HEAD\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: {}\r\n",
+                "Allow: GET, HEAD, OPTIONS\r\nContent-Type: text/plain; charset=utf-8\r\nContent-Length: {}\r\n",
                 body.len()
             ));
             end_head(&mut head, keep, req.minor);
@@ -643,17 +704,22 @@ fn answer(shared: &Shared, req: &Request, keep: bool, out: &mut impl Write) -> i
     };
     shared.requests.fetch_add(1, Ordering::SeqCst);
     let faults = &shared.faults;
+    let note = |status: u16, range: Option<(u64, u64)>| shared.note(req, status, range);
     if Faults::take(&faults.drop_next) {
+        note(0, None);
         return Ok(Next::Drop);
     }
     if Faults::take(&faults.error_next) {
+        note(503, None);
         let mut head = status_head(503, "Service Unavailable");
         head.push_str("Content-Length: 0\r\n");
         end_head(&mut head, keep, req.minor);
         out.write_all(head.as_bytes())?;
         return Ok(next);
     }
-    let Some(path) = shared.files.get(&req.name) else {
+    let name = if req.name.is_empty() && shared.files.contains_key("index.html") { "index.html" } else { &req.name };
+    let Some(path) = shared.files.get(name) else {
+        note(404, None);
         simple(out, 404, "Not Found", keep, head_only, &format!("no file '/{}' here", req.name))?;
         return Ok(next);
     };
@@ -663,14 +729,17 @@ fn answer(shared: &Shared, req: &Request, keep: bool, out: &mut impl Write) -> i
     let (file, meta) = match opened {
         Ok((f, m)) if m.is_file() => (f, m),
         Ok(_) => {
+            note(404, None);
             simple(out, 404, "Not Found", keep, head_only, "not a regular file")?;
             return Ok(next);
         }
         Err(e) if e.kind() == io::ErrorKind::NotFound => {
+            note(404, None);
             simple(out, 404, "Not Found", keep, head_only, "the file is gone")?;
             return Ok(next);
         }
         Err(e) => {
+            note(500, None);
             simple(out, 500, "Internal Server Error", keep, head_only, &e.to_string())?;
             return Ok(next);
         }
@@ -682,6 +751,7 @@ fn answer(shared: &Shared, req: &Request, keep: bool, out: &mut impl Write) -> i
     }
     if let Some(list) = req.header("if-match") {
         if !etag_listed(list, &st.etag) {
+            note(412, None);
             let mut head = status_head(412, "Precondition Failed");
             head.push_str(&fields);
             head.push_str("Content-Length: 0\r\n");
@@ -704,6 +774,7 @@ fn answer(shared: &Shared, req: &Request, keep: bool, out: &mut impl Write) -> i
             (head, a, b)
         }
         RangeAsk::Unsatisfiable => {
+            note(416, None);
             let mut head = status_head(416, "Range Not Satisfiable");
             head.push_str(&fields);
             head.push_str(&format!("Content-Range: bytes */{}\r\nContent-Length: 0\r\n", st.len));
@@ -713,7 +784,9 @@ fn answer(shared: &Shared, req: &Request, keep: bool, out: &mut impl Write) -> i
         }
     };
     head.push_str(&fields);
-    head.push_str(&format!("Content-Type: application/octet-stream\r\nContent-Length: {}\r\n", end - start));
+    head.push_str(&format!("Content-Type: {}\r\nContent-Length: {}\r\n", content_type(name), end - start));
+    let status = if matches!(range, RangeAsk::Part(..)) { 206 } else { 200 };
+    note(status, (!head_only).then_some((start, end)));
     let short = !head_only && end > start && Faults::take(&faults.short_next);
     // A short body's headers are an honest answer's: nothing tells the client it will be cut.
     end_head(&mut head, keep || short, req.minor);
@@ -944,7 +1017,7 @@ mod tests {
         assert_eq!(c.get("/t.relief/x", "").status, 404);
         c.send("DELETE /t.relief HTTP/1.1\r\nHost: x\r\n\r\n");
         let r = c.read(false);
-        assert_eq!((r.status, r.header("allow")), (405, Some("GET, HEAD")));
+        assert_eq!((r.status, r.header("allow")), (405, Some("GET, HEAD, OPTIONS")));
         // The connection survived them all; a query string is not part of the name.
         assert_eq!(c.get("/t.relief?v=1", "").status, 200);
         assert_eq!(server.requests(), 3);

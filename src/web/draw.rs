@@ -1,0 +1,295 @@
+//! The web viewer's renderer: one pipeline (`shaders/web.wgsl`) that draws the refinement's
+//! triangle strip, positioned on the CPU, into any colour target: the page's canvas (WebGL2)
+//! or, natively, an offscreen texture (the tests' reference image of the same view). Within
+//! WebGL2's limits: a uniform block and a vertex buffer, nothing else.
+
+use glam::{DVec3, Mat4, Vec4};
+
+use relief_core::camera::Camera;
+
+/// The shader, beside its owner.
+pub const SHADER: &str = include_str!("../../shaders/web.wgsl");
+
+/// Reversed-z depth in f32, as the native renderer uses (precision from a metre to the horizon).
+pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+
+/// The sky, linear RGB (the shader's `SKY`): the clear colour and the fog's.
+pub const SKY: [f32; 3] = [0.53, 0.70, 0.88];
+
+/// The nearest the camera sees, metres.
+pub const NEAR_M: f64 = 1.0;
+
+/// The uniform block `Frame` of `shaders/web.wgsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct FrameUniform {
+    pub clip_from_rel: [[f32; 4]; 4],
+    pub eye_in_scene: [f32; 4],
+    pub sun_dir: [f32; 4],
+    /// z_lo, z_hi (scene metres), fog distance (m), 1 when the target is not sRGB.
+    pub ramp: [f32; 4],
+}
+
+/// What a frame is drawn with: the camera in scene coordinates (metres, z exaggerated), where the
+/// scene origin is, the height ramp and the fog.
+#[derive(Clone, Copy, Debug)]
+pub struct Look {
+    /// Scene coordinates of the vertex buffer's origin (the grid's centre at z = 0).
+    pub origin_in_scene: DVec3,
+    /// Heights the colour ramp spans, scene metres.
+    pub z_lo: f64,
+    pub z_hi: f64,
+    /// Distance at which the terrain has faded into the sky, metres.
+    pub fog_distance_m: f64,
+}
+
+impl FrameUniform {
+    /// The uniform for `camera` (scene coordinates) under `look`, for a target that is sRGB
+    /// (`srgb_target`) or not.
+    pub fn new(camera: &Camera, look: &Look, srgb_target: bool) -> FrameUniform {
+        let clip = camera.clip_from_rel(NEAR_M);
+        let eye = (camera.eye_in_world - look.origin_in_scene).as_vec3();
+        let sun = glam::Vec3::new(-0.45, 0.35, 0.82).normalize();
+        FrameUniform {
+            clip_from_rel: clip.to_cols_array_2d(),
+            eye_in_scene: Vec4::from((eye, 0.0)).to_array(),
+            sun_dir: Vec4::from((sun, 0.0)).to_array(),
+            ramp: [
+                (look.z_lo - look.origin_in_scene.z) as f32,
+                (look.z_hi - look.origin_in_scene.z) as f32,
+                look.fog_distance_m as f32,
+                if srgb_target { 0.0 } else { 1.0 },
+            ],
+        }
+    }
+
+    /// The matrix, as glam's.
+    pub fn clip_from_rel(&self) -> Mat4 {
+        Mat4::from_cols_array_2d(&self.clip_from_rel)
+    }
+}
+
+/// CPU reference of the shader's `shade` (linear RGB): a facet with unit normal `n` at scene
+/// height `z` (relative to the origin), `d` metres from the eye.
+pub fn shade(u: &FrameUniform, n: [f32; 3], z: f32, d: f32) -> [f32; 3] {
+    let c0 = [0.13, 0.30, 0.10];
+    let c1 = [0.42, 0.36, 0.18];
+    let c2 = [0.45, 0.43, 0.40];
+    let c3 = [0.92, 0.92, 0.95];
+    let mix = |a: [f32; 3], b: [f32; 3], t: f32| [0, 1, 2].map(|i| a[i] + (b[i] - a[i]) * t);
+    let t = (z - u.ramp[0]) / (u.ramp[1] - u.ramp[0]).max(1e-3);
+    let s = t.clamp(0.0, 1.0) * 3.0;
+    let ramp = if s < 1.0 {
+        mix(c0, c1, s)
+    } else if s < 2.0 {
+        mix(c1, c2, s - 1.0)
+    } else {
+        mix(c2, c3, s - 2.0)
+    };
+    let sun = u.sun_dir;
+    let light = 0.25 + 0.75 * (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
+    let fog = (d / u.ramp[2]).clamp(0.0, 1.0);
+    mix(ramp.map(|c| c * light), SKY, fog * fog)
+}
+
+/// The pipeline, its uniform and the strip's vertex buffer.
+pub struct Renderer {
+    pipeline: wgpu::RenderPipeline,
+    uniform: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+    vertices: Option<wgpu::Buffer>,
+    vertex_count: u32,
+    depth: Option<(wgpu::TextureView, u32, u32)>,
+    srgb_target: bool,
+}
+
+impl Renderer {
+    /// The pipeline for colour targets of `format`.
+    pub fn new(device: &wgpu::Device, format: wgpu::TextureFormat) -> Renderer {
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("relief web terrain"),
+            source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+        });
+        let layout_entry = wgpu::BindGroupLayoutEntry {
+            binding: 0,
+            visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+            ty: wgpu::BindingType::Buffer {
+                ty: wgpu::BufferBindingType::Uniform,
+                has_dynamic_offset: false,
+                min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<FrameUniform>() as u64),
+            },
+            count: None,
+        };
+        let group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("relief web frame"),
+            entries: &[layout_entry],
+        });
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("relief web"),
+            bind_group_layouts: &[Some(&group_layout)],
+            immediate_size: 0,
+        });
+        let attributes =
+            [wgpu::VertexAttribute { format: wgpu::VertexFormat::Float32x3, offset: 0, shader_location: 0 }];
+        let buffers = [Some(wgpu::VertexBufferLayout {
+            array_stride: 12,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &attributes,
+        })];
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("relief web terrain"),
+            layout: Some(&layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs_terrain"),
+                compilation_options: Default::default(),
+                buffers: &buffers,
+            },
+            primitive: wgpu::PrimitiveState {
+                topology: wgpu::PrimitiveTopology::TriangleStrip,
+                strip_index_format: None,
+                front_face: wgpu::FrontFace::Cw,
+                // Terrain is seen from below under cliffs: both faces.
+                cull_mode: None,
+                unclipped_depth: false,
+                polygon_mode: wgpu::PolygonMode::Fill,
+                conservative: false,
+            },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Greater),
+                stencil: wgpu::StencilState::default(),
+                bias: wgpu::DepthBiasState::default(),
+            }),
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_terrain"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let uniform = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("relief web frame"),
+            size: std::mem::size_of::<FrameUniform>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("relief web frame"),
+            layout: &group_layout,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
+        });
+        Renderer {
+            pipeline,
+            uniform,
+            bind_group,
+            vertices: None,
+            vertex_count: 0,
+            depth: None,
+            srgb_target: format.is_srgb(),
+        }
+    }
+
+    /// Whether the colour target encodes sRGB itself (else the shader does).
+    pub fn srgb_target(&self) -> bool {
+        self.srgb_target
+    }
+
+    /// Replaces the strip: `positions` in scene metres relative to the origin, strip order.
+    pub fn set_strip(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, positions: &[[f32; 3]]) {
+        let bytes: &[u8] = bytemuck::cast_slice(positions);
+        let fits = self.vertices.as_ref().is_some_and(|b| b.size() >= bytes.len() as u64);
+        if !fits {
+            // Grown by half again, so a flight's growing strips reallocate rarely.
+            let size = (bytes.len() as u64 * 3 / 2).max(4096).next_multiple_of(4);
+            self.vertices = Some(device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("relief web strip"),
+                size,
+                usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            }));
+        }
+        if let Some(b) = &self.vertices {
+            if !bytes.is_empty() {
+                queue.write_buffer(b, 0, bytes);
+            }
+        }
+        self.vertex_count = positions.len() as u32;
+    }
+
+    /// Draws the strip into `colour` (`width × height`), cleared to the sky.
+    pub fn draw(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        colour: &wgpu::TextureView,
+        (width, height): (u32, u32),
+        uniform: &FrameUniform,
+    ) {
+        if !matches!(&self.depth, Some((_, w, h)) if (*w, *h) == (width, height)) {
+            let depth = device.create_texture(&wgpu::TextureDescriptor {
+                label: Some("relief web depth"),
+                size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: DEPTH_FORMAT,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+                view_formats: &[],
+            });
+            self.depth = Some((depth.create_view(&Default::default()), width, height));
+        }
+        queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(uniform));
+        let Some((depth, _, _)) = &self.depth else { return };
+        // The clear colour as the target stores it.
+        let sky = if self.srgb_target { SKY } else { SKY.map(srgb_encode) };
+        let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("relief web") });
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("relief web frame"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: colour,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color {
+                            r: sky[0] as f64,
+                            g: sky[1] as f64,
+                            b: sky[2] as f64,
+                            a: 1.0,
+                        }),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: depth,
+                    depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(0.0), store: wgpu::StoreOp::Store }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            if let (Some(v), true) = (&self.vertices, self.vertex_count >= 3) {
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &self.bind_group, &[]);
+                pass.set_vertex_buffer(0, v.slice(..));
+                pass.draw(0..self.vertex_count, 0..1);
+            }
+        }
+        queue.submit([encoder.finish()]);
+    }
+}
+
+/// Linear to sRGB, as the shader's `srgb_encode`.
+pub fn srgb_encode(c: f32) -> f32 {
+    if c <= 0.003_130_8 {
+        c * 12.92
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    }
+}

@@ -1,0 +1,631 @@
+//! The page (wasm32 only): reads the terrain named in the address's fragment
+//! (`#terrain.relief`, or `#https://host/path/terrain.relief`, then `&key=value` options) with
+//! `fetch` and `Range` headers, refines it progressively each animation frame, draws it with
+//! wgpu (WebGL2) in the page's `<canvas>`, and answers `window.relief.status()` with what a
+//! test or a person wants to know. Bad input is a message over the canvas and `status().error`.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+
+use glam::DVec3;
+use serde::Serialize;
+use wasm_bindgen::prelude::*;
+use wasm_bindgen::JsCast;
+use wasm_bindgen_futures::{spawn_local, JsFuture};
+use web_sys::{HtmlCanvasElement, HtmlElement, Request, RequestInit, Response};
+
+use relief_core::refine::progressive::HostedRequest;
+
+use crate::draw::{FrameUniform, Renderer};
+use crate::scene::{Orbit, Scene, FIRST_RANGE_BYTES};
+
+/// What `window.relief.status()` returns (as a plain object).
+#[derive(Clone, Debug, Default, Serialize)]
+struct Status {
+    /// The terrain's address, resolved against the page.
+    url: String,
+    /// The graphics backend and adapter.
+    backend: String,
+    /// Set once a frame had every record it needed, was drawn, and nothing was in flight.
+    complete: bool,
+    /// Milliseconds from the page's start to the first complete frame.
+    first_complete_ms: Option<f64>,
+    /// Round trips the first complete frame waited for (1: the opening request alone).
+    first_complete_round_trips: Option<u64>,
+    /// A one-line message for bad input or a failure (then nothing more happens).
+    error: Option<String>,
+    frames: u64,
+    triangles: u64,
+    requests: u64,
+    bytes: u64,
+    round_trips: u64,
+    tolerance_px: f64,
+    z_exaggeration: f64,
+    width: u32,
+    height: u32,
+    /// Median milliseconds of refinement and of a whole frame, over the frames drawn so far.
+    refine_ms_median: f64,
+    frame_ms_median: f64,
+    /// Frames per second over the last second of frames drawn.
+    fps: f64,
+    /// Every byte range fetched, in order: `[start, end)`.
+    ranges: Vec<(u64, u64)>,
+}
+
+/// The options of the address's fragment.
+struct Params {
+    terrain: String,
+    tolerance_px: f64,
+    z_exaggeration: f64,
+    eye: Option<DVec3>,
+    look: Option<DVec3>,
+    /// Degrees the orbit turns per frame (a turntable, for frame-rate figures); 0: still.
+    spin_deg: f64,
+}
+
+fn parse_params(fragment: &str) -> Result<Params, String> {
+    let mut parts = fragment.trim_start_matches('#').split('&');
+    let terrain = parts.next().unwrap_or_default().trim().to_string();
+    let mut p = Params { terrain, tolerance_px: 2.0, z_exaggeration: 1.0, eye: None, look: None, spin_deg: 0.0 };
+    let number =
+        |key: &str, v: &str| v.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or(format!("#{key}={v}: not a number"));
+    let point = |key: &str, v: &str| -> Result<DVec3, String> {
+        let c: Vec<f64> = v.split(',').map(|c| number(key, c)).collect::<Result<_, _>>()?;
+        match c[..] {
+            [x, y, z] => Ok(DVec3::new(x, y, z)),
+            _ => Err(format!("#{key}={v}: expected X,Y,Z metres")),
+        }
+    };
+    for kv in parts.filter(|s| !s.is_empty()) {
+        let (k, v) = kv.split_once('=').unwrap_or((kv, ""));
+        let v = &*js_sys::decode_uri_component(v).map(String::from).unwrap_or_else(|_| v.to_string());
+        match k {
+            "tau" => p.tolerance_px = number(k, v)?.clamp(0.1, 100.0),
+            "z" => p.z_exaggeration = number(k, v)?,
+            "eye" => p.eye = Some(point(k, v)?),
+            "look" => p.look = Some(point(k, v)?),
+            "spin" => p.spin_deg = number(k, v)?,
+            _ => return Err(format!("#{k}: unknown option (tau, z, eye, look, spin)")),
+        }
+    }
+    if !(1.0..=100.0).contains(&p.z_exaggeration) {
+        return Err(format!("#z={}: the vertical exaggeration must be between 1 and 100", p.z_exaggeration));
+    }
+    Ok(p)
+}
+
+fn window() -> web_sys::Window {
+    web_sys::window().expect("a page has a window")
+}
+
+fn now_ms() -> f64 {
+    window().performance().map_or(0.0, |p| p.now())
+}
+
+fn element<T: JsCast>(id: &str) -> Result<T, String> {
+    window()
+        .document()
+        .and_then(|d| d.get_element_by_id(id))
+        .and_then(|e| e.dyn_into::<T>().ok())
+        .ok_or(format!("the page has no #{id} element of the right kind"))
+}
+
+fn js_message(e: &JsValue) -> String {
+    e.dyn_ref::<js_sys::Error>()
+        .map(|e| String::from(e.message()))
+        .or_else(|| e.as_string())
+        .unwrap_or_else(|| format!("{e:?}"))
+}
+
+/// Fetches bytes `[start, end)` of `url`; the answer must be that range (206 with a matching
+/// `Content-Range`). Returns the body and the file's length.
+async fn fetch_range(url: &str, start: u64, end: u64) -> Result<(Vec<u8>, u64), String> {
+    let init = RequestInit::new();
+    init.set_method("GET");
+    let request = Request::new_with_str_and_init(url, &init).map_err(|e| format!("{url}: {}", js_message(&e)))?;
+    request
+        .headers()
+        .set("Range", &format!("bytes={start}-{}", end - 1))
+        .map_err(|e| format!("{url}: {}", js_message(&e)))?;
+    let answer = JsFuture::from(window().fetch_with_request(&request)).await.map_err(|e| {
+        format!(
+            "{url}: could not be fetched ({}): the server is unreachable, or it refuses cross-origin reads \
+             (CORS: it must send Access-Control-Allow-Origin)",
+            js_message(&e)
+        )
+    })?;
+    let response: Response =
+        answer.dyn_into().map_err(|_| format!("{url}: fetch answered something not a Response"))?;
+    match response.status() {
+        206 => {}
+        200 => {
+            return Err(format!(
+                "{url}: the server does not support range requests (it answered a Range request with the whole \
+                 file); relief reads terrain files in ranges"
+            ))
+        }
+        s => return Err(format!("{url}: the server answered {s} {}", response.status_text())),
+    }
+    let range = response.headers().get("Content-Range").ok().flatten().ok_or(format!(
+        "{url}: the answer's Content-Range cannot be read (a server on another origin must list it in \
+         Access-Control-Expose-Headers)"
+    ))?;
+    let (got_start, len) = parse_content_range(&range).ok_or(format!("{url}: a Content-Range of '{range}'"))?;
+    let body = JsFuture::from(response.array_buffer().map_err(|e| format!("{url}: {}", js_message(&e)))?)
+        .await
+        .map_err(|e| format!("{url}: the body was cut off ({})", js_message(&e)))?;
+    let bytes = js_sys::Uint8Array::new(&body).to_vec();
+    let want = end.min(len).saturating_sub(start);
+    if got_start != start || bytes.len() as u64 != want {
+        return Err(format!("{url}: asked for bytes {start}..{end}, got {} at {got_start}", bytes.len()));
+    }
+    Ok((bytes, len))
+}
+
+/// `bytes a-b/len` → (a, len).
+fn parse_content_range(v: &str) -> Option<(u64, u64)> {
+    let rest = v.trim().strip_prefix("bytes ")?;
+    let (span, len) = rest.split_once('/')?;
+    let (a, _) = span.split_once('-')?;
+    Some((a.trim().parse().ok()?, len.trim().parse().ok()?))
+}
+
+/// Everything the page holds once the terrain is open.
+struct App {
+    scene: Scene,
+    orbit: Orbit,
+    url: String,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    surface: wgpu::Surface<'static>,
+    config: wgpu::SurfaceConfiguration,
+    renderer: Renderer,
+    canvas: HtmlCanvasElement,
+    hud: HtmlElement,
+    status: Rc<RefCell<Status>>,
+    started_ms: f64,
+    /// Something changed since the last frame drawn (view, size, data): draw again.
+    dirty: bool,
+    spin_deg: f64,
+    refine_ms: Vec<f64>,
+    frame_ms: Vec<f64>,
+    frame_times: std::collections::VecDeque<f64>,
+    drag: Option<(i16, f64, f64)>,
+    pinch: Option<f64>,
+    failed: bool,
+}
+
+fn median(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    s[s.len() / 2]
+}
+
+impl App {
+    fn fail(&mut self, message: String) {
+        self.failed = true;
+        show_error(&self.status, &message);
+    }
+
+    /// One animation frame: refine if anything changed, draw, ask for what was missed.
+    fn frame(app: &Rc<RefCell<App>>) {
+        let mut a = app.borrow_mut();
+        if a.failed {
+            return;
+        }
+        if let Err(e) = a.draw_frame() {
+            a.fail(e);
+            return;
+        }
+        loop {
+            match a.scene.take_request() {
+                Ok(Some(request)) => spawn_fetch(app.clone(), a.url.clone(), request),
+                Ok(None) => break,
+                Err(e) => {
+                    a.fail(e.to_string());
+                    return;
+                }
+            }
+        }
+    }
+
+    fn draw_frame(&mut self) -> Result<(), String> {
+        let t0 = now_ms();
+        let dpr = window().device_pixel_ratio().max(1.0);
+        let (w, h) = (
+            ((self.canvas.client_width() as f64 * dpr) as u32).max(1),
+            ((self.canvas.client_height() as f64 * dpr) as u32).max(1),
+        );
+        if (w, h) != (self.config.width, self.config.height) {
+            self.canvas.set_width(w);
+            self.canvas.set_height(h);
+            self.config.width = w;
+            self.config.height = h;
+            self.surface.configure(&self.device, &self.config);
+            self.dirty = true;
+        }
+        if self.spin_deg != 0.0 {
+            self.orbit.yaw_deg = (self.orbit.yaw_deg + self.spin_deg).rem_euclid(360.0);
+            self.dirty = true;
+        }
+        if !self.dirty {
+            return Ok(());
+        }
+        self.dirty = false;
+        let camera = self.orbit.camera(w, h).map_err(|e| e.to_string())?;
+        let r0 = now_ms();
+        let progress = self.scene.refine(&camera).map_err(|e| e.to_string())?;
+        self.refine_ms.push(now_ms() - r0);
+        let look = self.scene.look();
+        let positions = self.scene.positions(&look);
+        self.renderer.set_strip(&self.device, &self.queue, &positions);
+        let frame = match self.surface.get_current_texture() {
+            wgpu::CurrentSurfaceTexture::Success(f) | wgpu::CurrentSurfaceTexture::Suboptimal(f) => f,
+            other => {
+                // Lost or outdated (a resize under way): configure again and draw next frame.
+                self.surface.configure(&self.device, &self.config);
+                self.dirty = true;
+                return match other {
+                    wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => Ok(()),
+                    _ => Ok(()),
+                };
+            }
+        };
+        let view = frame
+            .texture
+            .create_view(&wgpu::TextureViewDescriptor { format: Some(self.config.format), ..Default::default() });
+        let uniform = FrameUniform::new(&camera, &look, self.renderer.srgb_target());
+        self.renderer.draw(&self.device, &self.queue, &view, (w, h), &uniform);
+        self.queue.present(frame);
+        let end = now_ms();
+        self.frame_ms.push(end - t0);
+        self.frame_times.push_back(end);
+        while self.frame_times.front().is_some_and(|&t| end - t > 1000.0) {
+            self.frame_times.pop_front();
+        }
+        // Still coarse: the next frame refines again with what arrives meanwhile.
+        if !progress.complete() {
+            self.dirty = true;
+        }
+        let net = self.scene.network();
+        let complete = progress.complete() && self.scene.outstanding() == 0;
+        let mut s = self.status.borrow_mut();
+        s.frames += 1;
+        s.triangles = self.scene.triangles();
+        s.requests = net.requests;
+        s.bytes = net.bytes;
+        s.round_trips = progress.round_trips;
+        s.complete = complete;
+        if complete && s.first_complete_ms.is_none() {
+            s.first_complete_ms = Some(end - self.started_ms);
+            s.first_complete_round_trips = Some(progress.round_trips);
+        }
+        s.tolerance_px = self.scene.options.tolerance_px;
+        s.z_exaggeration = self.scene.options.z_exaggeration;
+        (s.width, s.height) = (w, h);
+        s.refine_ms_median = median(&self.refine_ms);
+        s.frame_ms_median = median(&self.frame_ms);
+        s.fps = self.frame_times.len() as f64;
+        let hud = format!(
+            "τ {:.1} px · {} triangles · {} in {} requests · refine {:.1} ms · frame {:.1} ms{}",
+            s.tolerance_px,
+            s.triangles,
+            fmt_bytes(s.bytes),
+            s.requests,
+            self.refine_ms.last().copied().unwrap_or(0.0),
+            s.frame_ms_median,
+            if complete { "" } else { " · loading" }
+        );
+        drop(s);
+        self.hud.set_inner_text(&hud);
+        Ok(())
+    }
+}
+
+fn fmt_bytes(b: u64) -> String {
+    match b {
+        0..1_000_000 => format!("{:.0} kB", b as f64 / 1e3),
+        _ => format!("{:.1} MB", b as f64 / 1e6),
+    }
+}
+
+/// Fetches every range of `request` (concurrently), inserts them, and delivers the request
+/// once the last has arrived.
+fn spawn_fetch(app: Rc<RefCell<App>>, url: String, request: HostedRequest) {
+    let left = Rc::new(RefCell::new((request.ranges.len(), Some(request.clone()))));
+    for &(start, end) in &request.ranges {
+        let (app, url, left) = (app.clone(), url.clone(), left.clone());
+        spawn_local(async move {
+            let got = fetch_range(&url, start, end).await;
+            let mut a = app.borrow_mut();
+            if a.failed {
+                return;
+            }
+            let result = got.and_then(|(bytes, _)| {
+                a.status.borrow_mut().ranges.push((start, end));
+                a.scene.insert(start, &bytes).map_err(|e| e.to_string())
+            });
+            if let Err(e) = result {
+                a.fail(e);
+                return;
+            }
+            let mut l = left.borrow_mut();
+            l.0 -= 1;
+            if l.0 == 0 {
+                if let Some(r) = l.1.take() {
+                    if let Err(e) = a.scene.deliver(r) {
+                        a.fail(e.to_string());
+                        return;
+                    }
+                    a.dirty = true;
+                }
+            }
+        });
+    }
+}
+
+fn show_error(status: &Rc<RefCell<Status>>, message: &str) {
+    status.borrow_mut().error = Some(message.to_string());
+    if let Ok(e) = element::<HtmlElement>("message") {
+        e.set_inner_text(message);
+        let _ = e.style().set_property("display", "block");
+    }
+    web_sys::console::error_1(&JsValue::from_str(message));
+}
+
+/// `window.relief = { status() }`.
+fn expose_status(status: Rc<RefCell<Status>>) -> Result<(), String> {
+    let get = Closure::<dyn Fn() -> JsValue>::new(move || {
+        let json = serde_json::to_string(&*status.borrow()).unwrap_or_else(|_| "null".into());
+        js_sys::JSON::parse(&json).unwrap_or(JsValue::NULL)
+    });
+    let relief = js_sys::Object::new();
+    js_sys::Reflect::set(&relief, &"status".into(), get.as_ref()).map_err(|e| js_message(&e))?;
+    js_sys::Reflect::set(&relief, &"version".into(), &env!("CARGO_PKG_VERSION").into()).map_err(|e| js_message(&e))?;
+    js_sys::Reflect::set(&window(), &"relief".into(), &relief).map_err(|e| js_message(&e))?;
+    get.forget();
+    Ok(())
+}
+
+#[wasm_bindgen(start)]
+pub fn start() {
+    let status = Rc::new(RefCell::new(Status::default()));
+    if let Err(e) = expose_status(status.clone()) {
+        web_sys::console::error_1(&JsValue::from_str(&e));
+    }
+    // A new fragment is a new terrain or view: start again.
+    let reload = Closure::<dyn Fn()>::new(|| {
+        let _ = window().location().reload();
+    });
+    window().set_onhashchange(Some(reload.as_ref().unchecked_ref()));
+    reload.forget();
+    spawn_local(async move {
+        if let Err(e) = run(status.clone()).await {
+            show_error(&status, &e);
+        }
+    });
+}
+
+async fn run(status: Rc<RefCell<Status>>) -> Result<(), String> {
+    let started_ms = now_ms();
+    let location = window().location();
+    let fragment = location.hash().unwrap_or_default();
+    let params = parse_params(&fragment)?;
+    if params.terrain.is_empty() {
+        return Err(
+            "No terrain named: add its address after '#' (a file served beside this page, #terrain.relief, or a \
+             URL on a server that allows CORS, #https://host/terrain.relief)"
+                .into(),
+        );
+    }
+    let href = location.href().map_err(|e| js_message(&e))?;
+    let url = web_sys::Url::new_with_base(&params.terrain, &href)
+        .map_err(|_| format!("#{}: not an address", params.terrain))?
+        .href();
+    status.borrow_mut().url = url.clone();
+    let (first, len) = fetch_range(&url, 0, FIRST_RANGE_BYTES).await?;
+    status.borrow_mut().ranges.push((0, first.len() as u64));
+    let mut scene = Scene::open(&url, len, &first).map_err(|e| e.to_string())?;
+    scene.options.tolerance_px = params.tolerance_px;
+    scene.options.z_exaggeration = params.z_exaggeration;
+    let mut orbit = Orbit::overview(scene.terrain(), params.z_exaggeration);
+    if let (Some(eye), Some(look)) = (params.eye, params.look) {
+        // An explicit view (local metres, z unexaggerated): as an orbit around `look`.
+        let x = params.z_exaggeration;
+        let (eye, look) = (DVec3::new(eye.x, eye.y, eye.z * x), DVec3::new(look.x, look.y, look.z * x));
+        let d = look - eye;
+        orbit.target_in_scene = look;
+        orbit.distance_m = d.length().max(1.0);
+        orbit.yaw_deg = d.x.atan2(d.y).to_degrees();
+        orbit.pitch_deg = (-d.z / d.length().max(1e-9)).asin().to_degrees();
+    }
+
+    let canvas: HtmlCanvasElement = element("canvas")?;
+    let hud: HtmlElement = element("hud")?;
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+        backends: wgpu::Backends::GL,
+        ..wgpu::InstanceDescriptor::new_without_display_handle()
+    });
+    let surface = instance
+        .create_surface(wgpu::SurfaceTarget::Canvas(canvas.clone()))
+        .map_err(|e| format!("this browser gives no WebGL2 canvas ({e})"))?;
+    let adapter = instance
+        .request_adapter(&wgpu::RequestAdapterOptions { compatible_surface: Some(&surface), ..Default::default() })
+        .await
+        .map_err(|e| format!("no WebGL2 adapter ({e})"))?;
+    let info = adapter.get_info();
+    let (device, queue) = adapter
+        .request_device(&wgpu::DeviceDescriptor {
+            label: Some("relief web"),
+            required_limits: wgpu::Limits::downlevel_webgl2_defaults().using_resolution(adapter.limits()),
+            ..Default::default()
+        })
+        .await
+        .map_err(|e| format!("cannot open the WebGL2 device: {e}"))?;
+    let dpr = window().device_pixel_ratio().max(1.0);
+    let (w, h) =
+        (((canvas.client_width() as f64 * dpr) as u32).max(1), ((canvas.client_height() as f64 * dpr) as u32).max(1));
+    canvas.set_width(w);
+    canvas.set_height(h);
+    let mut config = surface.get_default_config(&adapter, w, h).ok_or("the canvas offers no surface format")?;
+    let caps = surface.get_capabilities(&adapter);
+    if let Some(f) = caps.formats.iter().find(|f| f.is_srgb()) {
+        config.format = *f;
+    }
+    surface.configure(&device, &config);
+    let renderer = Renderer::new(&device, config.format);
+    status.borrow_mut().backend = format!("{:?}: {}", info.backend, info.name);
+
+    let app = Rc::new(RefCell::new(App {
+        scene,
+        orbit,
+        url,
+        device,
+        queue,
+        surface,
+        config,
+        renderer,
+        canvas: canvas.clone(),
+        hud,
+        status: status.clone(),
+        started_ms,
+        dirty: true,
+        spin_deg: params.spin_deg,
+        refine_ms: Vec::new(),
+        frame_ms: Vec::new(),
+        frame_times: Default::default(),
+        drag: None,
+        pinch: None,
+        failed: false,
+    }));
+    controls(&app, &canvas)?;
+    animate(app);
+    Ok(())
+}
+
+/// Draws every animation frame.
+fn animate(app: Rc<RefCell<App>>) {
+    let tick: Rc<RefCell<Option<Closure<dyn FnMut()>>>> = Rc::new(RefCell::new(None));
+    let again = tick.clone();
+    *tick.borrow_mut() = Some(Closure::new(move || {
+        App::frame(&app);
+        if let Some(f) = again.borrow().as_ref() {
+            let _ = window().request_animation_frame(f.as_ref().unchecked_ref());
+        }
+    }));
+    let first = tick.borrow();
+    if let Some(f) = first.as_ref() {
+        let _ = window().request_animation_frame(f.as_ref().unchecked_ref());
+    }
+}
+
+fn listen<E: JsCast + 'static>(
+    target: &web_sys::EventTarget,
+    kind: &str,
+    app: &Rc<RefCell<App>>,
+    f: impl Fn(&mut App, E) + 'static,
+) -> Result<(), String> {
+    let app = app.clone();
+    let handler = Closure::<dyn FnMut(web_sys::Event)>::new(move |e: web_sys::Event| {
+        if let (Ok(e), Ok(mut a)) = (e.dyn_into::<E>(), app.try_borrow_mut()) {
+            f(&mut a, e);
+        }
+    });
+    let options = web_sys::AddEventListenerOptions::new();
+    options.set_passive(false);
+    target
+        .add_event_listener_with_callback_and_add_event_listener_options(
+            kind,
+            handler.as_ref().unchecked_ref(),
+            &options,
+        )
+        .map_err(|e| js_message(&e))?;
+    handler.forget();
+    Ok(())
+}
+
+/// Mouse: drag to orbit, right-drag or shift-drag to pan, wheel to zoom. Touch: one finger
+/// orbits, two pinch. Keys: + and − change τ, [ and ] the exaggeration, arrows orbit, R resets.
+fn controls(app: &Rc<RefCell<App>>, canvas: &HtmlCanvasElement) -> Result<(), String> {
+    let target: &web_sys::EventTarget = canvas.as_ref();
+    listen(target, "contextmenu", app, |_, e: web_sys::MouseEvent| e.prevent_default())?;
+    listen(target, "mousedown", app, |a, e: web_sys::MouseEvent| {
+        let button = if e.shift_key() { 2 } else { e.button() };
+        a.drag = Some((button, e.client_x() as f64, e.client_y() as f64));
+    })?;
+    let win: web_sys::EventTarget = window().into();
+    listen(&win, "mouseup", app, |a, _: web_sys::MouseEvent| a.drag = None)?;
+    listen(&win, "mousemove", app, |a, e: web_sys::MouseEvent| {
+        let Some((button, x, y)) = a.drag else { return };
+        let (nx, ny) = (e.client_x() as f64, e.client_y() as f64);
+        let h = a.config.height;
+        if button == 0 {
+            a.orbit.rotate(nx - x, ny - y);
+        } else {
+            a.orbit.pan(nx - x, ny - y, h);
+        }
+        a.drag = Some((button, nx, ny));
+        a.dirty = true;
+    })?;
+    listen(target, "wheel", app, |a, e: web_sys::WheelEvent| {
+        e.prevent_default();
+        a.orbit.zoom(-e.delta_y() / 100.0);
+        a.dirty = true;
+    })?;
+    listen(target, "touchstart", app, |a, e: web_sys::TouchEvent| {
+        e.prevent_default();
+        let t = e.touches();
+        match (t.get(0), t.get(1)) {
+            (Some(p), Some(q)) => {
+                a.pinch = Some(((p.client_x() - q.client_x()) as f64).hypot((p.client_y() - q.client_y()) as f64));
+                a.drag = None;
+            }
+            (Some(p), None) => a.drag = Some((0, p.client_x() as f64, p.client_y() as f64)),
+            _ => {}
+        }
+    })?;
+    listen(target, "touchmove", app, |a, e: web_sys::TouchEvent| {
+        e.prevent_default();
+        let t = e.touches();
+        match (t.get(0), t.get(1), a.pinch, a.drag) {
+            (Some(p), Some(q), Some(d0), _) => {
+                let d = ((p.client_x() - q.client_x()) as f64).hypot((p.client_y() - q.client_y()) as f64);
+                if d0 > 0.0 && d > 0.0 {
+                    a.orbit.zoom((d / d0).ln() / 0.9f64.recip().ln());
+                }
+                a.pinch = Some(d);
+            }
+            (Some(p), None, _, Some((_, x, y))) => {
+                let (nx, ny) = (p.client_x() as f64, p.client_y() as f64);
+                a.orbit.rotate(nx - x, ny - y);
+                a.drag = Some((0, nx, ny));
+            }
+            _ => return,
+        }
+        a.dirty = true;
+    })?;
+    listen(target, "touchend", app, |a, _: web_sys::TouchEvent| {
+        a.drag = None;
+        a.pinch = None;
+    })?;
+    listen(&win, "keydown", app, |a, e: web_sys::KeyboardEvent| {
+        let o = &mut a.scene.options;
+        match e.key().as_str() {
+            "+" | "=" => o.tolerance_px = (o.tolerance_px / 1.25).max(0.1),
+            "-" | "_" => o.tolerance_px = (o.tolerance_px * 1.25).min(100.0),
+            "]" => o.z_exaggeration = (o.z_exaggeration * 1.25).min(100.0),
+            "[" => o.z_exaggeration = (o.z_exaggeration / 1.25).max(1.0),
+            "ArrowLeft" => a.orbit.rotate(-20.0, 0.0),
+            "ArrowRight" => a.orbit.rotate(20.0, 0.0),
+            "ArrowUp" => a.orbit.rotate(0.0, -10.0),
+            "ArrowDown" => a.orbit.rotate(0.0, 10.0),
+            "r" | "R" => a.orbit = Orbit::overview(a.scene.terrain(), a.scene.options.z_exaggeration),
+            _ => return,
+        }
+        a.dirty = true;
+    })?;
+    Ok(())
+}
