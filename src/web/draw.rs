@@ -285,6 +285,60 @@ impl Renderer {
     }
 }
 
+/// Native only (the tests' reference image): draws the strip `positions` for `uniform` into a new
+/// `width × height` sRGB texture on `device` and reads it back, RGBA8 rows from the top.
+#[cfg(not(target_arch = "wasm32"))]
+pub fn render_offscreen(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    positions: &[[f32; 3]],
+    (width, height): (u32, u32),
+    uniform: &FrameUniform,
+) -> Result<Vec<u8>, String> {
+    let format = wgpu::TextureFormat::Rgba8UnormSrgb;
+    let texture = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("relief web offscreen"),
+        size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
+    });
+    let mut renderer = Renderer::new(device, format);
+    renderer.set_strip(device, queue, positions);
+    renderer.draw(device, queue, &texture.create_view(&Default::default()), (width, height), uniform);
+    let row = (width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+    let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("relief web readback"),
+        size: row as u64 * height as u64,
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&Default::default());
+    encoder.copy_texture_to_buffer(
+        texture.as_image_copy(),
+        wgpu::TexelCopyBufferInfo {
+            buffer: &buffer,
+            layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row), rows_per_image: Some(height) },
+        },
+        wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+    );
+    queue.submit([encoder.finish()]);
+    let slice = buffer.slice(..);
+    slice.map_async(wgpu::MapMode::Read, |_| {});
+    device
+        .poll(wgpu::PollType::Wait { submission_index: None, timeout: None })
+        .map_err(|e| format!("waiting for the GPU: {e}"))?;
+    let mapped = slice.get_mapped_range().map_err(|e| format!("reading the image back: {e}"))?;
+    let mut out = Vec::with_capacity((width * height * 4) as usize);
+    for r in 0..height as usize {
+        out.extend_from_slice(&mapped[r * row as usize..r * row as usize + width as usize * 4]);
+    }
+    Ok(out)
+}
+
 /// Linear to sRGB, as the shader's `srgb_encode`.
 pub fn srgb_encode(c: f32) -> f32 {
     if c <= 0.003_130_8 {

@@ -61,12 +61,25 @@ struct Params {
     look: Option<DVec3>,
     /// Degrees the orbit turns per frame (a turntable, for frame-rate figures); 0: still.
     spin_deg: f64,
+    /// The HUD and the help line (off for screenshots compared with a reference).
+    hud: bool,
+    /// Bytes of the opening request (whole pages).
+    first_bytes: u64,
 }
 
 fn parse_params(fragment: &str) -> Result<Params, String> {
     let mut parts = fragment.trim_start_matches('#').split('&');
     let terrain = parts.next().unwrap_or_default().trim().to_string();
-    let mut p = Params { terrain, tolerance_px: 2.0, z_exaggeration: 1.0, eye: None, look: None, spin_deg: 0.0 };
+    let mut p = Params {
+        terrain,
+        tolerance_px: 2.0,
+        z_exaggeration: 1.0,
+        eye: None,
+        look: None,
+        spin_deg: 0.0,
+        hud: true,
+        first_bytes: FIRST_RANGE_BYTES,
+    };
     let number =
         |key: &str, v: &str| v.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or(format!("#{key}={v}: not a number"));
     let point = |key: &str, v: &str| -> Result<DVec3, String> {
@@ -85,7 +98,15 @@ fn parse_params(fragment: &str) -> Result<Params, String> {
             "eye" => p.eye = Some(point(k, v)?),
             "look" => p.look = Some(point(k, v)?),
             "spin" => p.spin_deg = number(k, v)?,
-            _ => return Err(format!("#{k}: unknown option (tau, z, eye, look, spin)")),
+            "hud" => p.hud = v != "0",
+            "first" => {
+                let b = number(k, v)?;
+                if !(b >= 4096.0 && b <= 1e9) {
+                    return Err(format!("#first={v}: the opening request must be 4096 bytes to 1 GB"));
+                }
+                p.first_bytes = (b as u64).div_ceil(4096) * 4096;
+            }
+            _ => return Err(format!("#{k}: unknown option (tau, z, eye, look, spin, hud, first)")),
         }
     }
     if !(1.0..=100.0).contains(&p.z_exaggeration) {
@@ -168,6 +189,23 @@ fn parse_content_range(v: &str) -> Option<(u64, u64)> {
     let (span, len) = rest.split_once('/')?;
     let (a, _) = span.split_once('-')?;
     Some((a.trim().parse().ok()?, len.trim().parse().ok()?))
+}
+
+/// What to tell a person whose file did not open; a newer file says to update the viewer.
+fn open_error(url: &str, e: relief_core::Error) -> String {
+    use relief_core::error::Problem;
+    match &e {
+        relief_core::Error::File { problem: Problem::Version { found, supported, .. }, .. } if found > supported => {
+            format!(
+                "{url}: the file is version {found}, newer than this viewer (it reads terrain files up to version \
+                 {supported}); serve it with a newer relief (relief serve --viewer)"
+            )
+        }
+        relief_core::Error::File { problem: Problem::BadMagic, .. } => {
+            format!("{url}: not a relief terrain file (convert a DEM with `relief convert`)")
+        }
+        _ => e.to_string(),
+    }
 }
 
 /// Everything the page holds once the terrain is open.
@@ -426,25 +464,26 @@ async fn run(status: Rc<RefCell<Status>>) -> Result<(), String> {
         .map_err(|_| format!("#{}: not an address", params.terrain))?
         .href();
     status.borrow_mut().url = url.clone();
-    let (first, len) = fetch_range(&url, 0, FIRST_RANGE_BYTES).await?;
+    let (first, len) = fetch_range(&url, 0, params.first_bytes).await?;
     status.borrow_mut().ranges.push((0, first.len() as u64));
-    let mut scene = Scene::open(&url, len, &first).map_err(|e| e.to_string())?;
+    let mut scene = Scene::open(&url, len, &first).map_err(|e| open_error(&url, e))?;
     scene.options.tolerance_px = params.tolerance_px;
     scene.options.z_exaggeration = params.z_exaggeration;
     let mut orbit = Orbit::overview(scene.terrain(), params.z_exaggeration);
     if let (Some(eye), Some(look)) = (params.eye, params.look) {
-        // An explicit view (local metres, z unexaggerated): as an orbit around `look`.
-        let x = params.z_exaggeration;
-        let (eye, look) = (DVec3::new(eye.x, eye.y, eye.z * x), DVec3::new(look.x, look.y, look.z * x));
-        let d = look - eye;
-        orbit.target_in_scene = look;
-        orbit.distance_m = d.length().max(1.0);
-        orbit.yaw_deg = d.x.atan2(d.y).to_degrees();
-        orbit.pitch_deg = (-d.z / d.length().max(1e-9)).asin().to_degrees();
+        // An explicit view (local metres, heights unexaggerated).
+        orbit = Orbit::looking(eye, look, params.z_exaggeration);
     }
 
     let canvas: HtmlCanvasElement = element("canvas")?;
     let hud: HtmlElement = element("hud")?;
+    if !params.hud {
+        for id in ["hud", "help"] {
+            if let Ok(e) = element::<HtmlElement>(id) {
+                let _ = e.style().set_property("display", "none");
+            }
+        }
+    }
     let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
         backends: wgpu::Backends::GL,
         ..wgpu::InstanceDescriptor::new_without_display_handle()

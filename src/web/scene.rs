@@ -9,7 +9,7 @@ use std::sync::Arc;
 use glam::DVec3;
 
 use relief_core::camera::Camera;
-use relief_core::format::terrain::TerrainFile;
+use relief_core::format::terrain::{Header, TerrainFile};
 use relief_core::pager::hosted::HostedFile;
 use relief_core::pager::source::RemoteStats;
 use relief_core::pager::Access;
@@ -93,40 +93,49 @@ impl Scene {
         (self.strip.vertices.len() as u64).saturating_sub(2)
     }
 
-    /// The look of the scene: origin at the grid's centre, ramp over the file's heights.
+    /// The look of the scene ([`look_of`]).
     pub fn look(&self) -> Look {
-        let h = self.terrain.header();
-        let x = self.options.z_exaggeration;
-        let [w, d] = h.extent_m();
-        Look {
-            origin_in_scene: DVec3::new(0.5 * w, 0.5 * d, 0.0),
-            z_lo: h.z_min * x,
-            z_hi: h.z_max * x,
-            fog_distance_m: 4.0 * w.max(d),
-        }
+        look_of(self.terrain.header(), self.options.z_exaggeration)
     }
 
-    /// The last strip's vertices in scene metres relative to `look.origin_in_scene`. Posts of
-    /// the padding outside the DEM's own window are drawn on its edge (their triangles vanish).
+    /// The last strip's vertices in scene metres relative to `look.origin_in_scene` (see
+    /// [`positions`]).
     pub fn positions(&self, look: &Look) -> Vec<[f32; 3]> {
-        let h = self.terrain.header();
-        let [x0, y0, x1, y1] = h.valid_window;
-        let [sx, sy] = h.spacing_m;
-        let zx = self.options.z_exaggeration;
-        let mid = 0.5 * (h.z_min + h.z_max);
-        let o = look.origin_in_scene;
-        self.strip
-            .vertices
-            .iter()
-            .enumerate()
-            .map(|(i, v)| {
-                let x = v.x.clamp(x0, x1.saturating_sub(1).max(x0)) as f64 * sx - o.x;
-                let y = v.y.clamp(y0, y1.saturating_sub(1).max(y0)) as f64 * sy - o.y;
-                let z = self.strip.morph.get(i).map_or(mid, |m| m.z_m as f64) * zx - o.z;
-                [x as f32, y as f32, z as f32]
-            })
-            .collect()
+        positions(self.terrain.header(), &self.strip, look, self.options.z_exaggeration)
     }
+}
+
+/// The look of a terrain's scene: origin at the grid's centre, ramp over the file's heights.
+pub fn look_of(h: &Header, z_exaggeration: f64) -> Look {
+    let [w, d] = h.extent_m();
+    Look {
+        origin_in_scene: DVec3::new(0.5 * w, 0.5 * d, 0.0),
+        z_lo: h.z_min * z_exaggeration,
+        z_hi: h.z_max * z_exaggeration,
+        fog_distance_m: 4.0 * w.max(d),
+    }
+}
+
+/// A strip's vertices (with heights, `RefineOptions::heights`) in scene metres relative to
+/// `look.origin_in_scene`, heights `z_exaggeration` times as high. Posts of the padding outside
+/// the DEM's own window are drawn on its edge (their triangles vanish); a vertex without a
+/// height yet stands at the terrain's mid height.
+pub fn positions(h: &Header, strip: &Strip, look: &Look, z_exaggeration: f64) -> Vec<[f32; 3]> {
+    let [x0, y0, x1, y1] = h.valid_window;
+    let [sx, sy] = h.spacing_m;
+    let mid = 0.5 * (h.z_min + h.z_max);
+    let o = look.origin_in_scene;
+    strip
+        .vertices
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let x = v.x.clamp(x0, x1.saturating_sub(1).max(x0)) as f64 * sx - o.x;
+            let y = v.y.clamp(y0, y1.saturating_sub(1).max(y0)) as f64 * sy - o.y;
+            let z = strip.morph.get(i).map_or(mid, |m| m.z_m as f64) * z_exaggeration - o.z;
+            [x as f32, y as f32, z as f32]
+        })
+        .collect()
 }
 
 /// An orbit camera: a target on the terrain, looked at from `distance_m` along a direction
@@ -141,16 +150,34 @@ pub struct Orbit {
 }
 
 impl Orbit {
-    /// Over the middle of `terrain`, from the south, the whole grid in view.
+    /// Over the middle of `terrain`'s DEM, from the south, all of it in view.
     pub fn overview(terrain: &TerrainFile, z_exaggeration: f64) -> Orbit {
         let h = terrain.header();
-        let [w, d] = h.extent_m();
+        let [x0, y0, x1, y1] = h.valid_window.map(f64::from);
+        let [sx, sy] = h.spacing_m;
+        let (w, d) = ((x1 - x0 - 1.0).max(1.0) * sx, (y1 - y0 - 1.0).max(1.0) * sy);
         let z = 0.5 * (h.z_min + h.z_max) * z_exaggeration;
         Orbit {
-            target_in_scene: DVec3::new(0.5 * w, 0.5 * d, z),
-            distance_m: 0.9 * w.max(d),
+            target_in_scene: DVec3::new(0.5 * (x0 + x1 - 1.0) * sx, 0.5 * (y0 + y1 - 1.0) * sy, z),
+            distance_m: 1.1 * w.max(d),
             yaw_deg: 0.0,
             pitch_deg: 35.0,
+            fov_x_deg: 60.0,
+        }
+    }
+
+    /// The orbit that sees `look` from `eye` (local metres, heights as in the file), in the
+    /// scene exaggerated `z_exaggeration` times.
+    pub fn looking(eye: DVec3, look: DVec3, z_exaggeration: f64) -> Orbit {
+        let x = z_exaggeration;
+        let (eye, look) = (DVec3::new(eye.x, eye.y, eye.z * x), DVec3::new(look.x, look.y, look.z * x));
+        let d = look - eye;
+        let distance_m = d.length().max(1e-6);
+        Orbit {
+            target_in_scene: look,
+            distance_m,
+            yaw_deg: d.x.atan2(d.y).to_degrees(),
+            pitch_deg: (-d.z / distance_m).asin().to_degrees(),
             fov_x_deg: 60.0,
         }
     }

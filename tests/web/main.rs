@@ -1,0 +1,249 @@
+//! The web viewer in a real browser: Debian's headless Chromium (WebGL2 on SwiftShader, driven by
+//! tools/browser.py over the DevTools pipe) opens the page `relief serve --viewer` serves (the
+//! library's server, with the viewer tools/web.sh built in target/viewer) on the bundled Zürich
+//! terrain. Its screenshot is compared with the native render of the same view by the same
+//! pipeline (wgpu on Vulkan, lavapipe here), and the server's log with what the page says it
+//! fetched. Bad input must be a message in the page. Run `bash tools/web.sh` first (tools/test.sh
+//! does).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::Arc;
+use std::time::Duration;
+
+use glam::DVec3;
+use relief_core::format::terrain::TerrainFile;
+use relief_core::layout::LayoutKind;
+use relief_core::pager::serve::{Faults, ServeOptions, Server};
+use relief_core::preprocess::convert::{convert, ConvertOptions};
+use relief_core::refine::{RefineOptions, Refiner, Strip};
+use relief_web::draw::{render_offscreen, FrameUniform};
+use relief_web::scene::{look_of, positions, Orbit};
+
+fn checkout() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// The built viewer's files, served under their names.
+fn viewer_files() -> Vec<(String, PathBuf)> {
+    let dir = std::env::var_os("RELIEF_VIEWER_DIR").map_or_else(|| checkout().join("target/viewer"), PathBuf::from);
+    ["index.html", "relief_web.js", "relief_web_bg.wasm"]
+        .iter()
+        .map(|f| {
+            let p = dir.join(f);
+            assert!(p.is_file(), "{}: missing; build the viewer first: bash tools/web.sh", p.display());
+            (f.to_string(), p)
+        })
+        .collect()
+}
+
+fn zurich(dir: &Path) -> PathBuf {
+    let out = dir.join("zurich.relief");
+    convert(&checkout().join("data/zurich_25m_i16.tif"), &out, &ConvertOptions::new(LayoutKind::Interleaved)).unwrap();
+    out
+}
+
+fn serve(files: Vec<(String, PathBuf)>, options: ServeOptions) -> Server {
+    Server::start(files, "127.0.0.1:0".parse().unwrap(), options).unwrap()
+}
+
+/// What tools/browser.py reported.
+struct Run {
+    code: i32,
+    stdout: String,
+    stderr: String,
+    status: serde_json::Value,
+}
+
+/// Opens `url` in headless Chromium at `w × h`; with `expect_error`, succeeds only if the page
+/// reports an error containing it.
+fn browse(url: &str, dir: &Path, (w, h): (u32, u32), shot: Option<&Path>, expect_error: Option<&str>) -> Run {
+    let status = dir.join(format!("status-{}.json", std::process::id()));
+    let mut c = Command::new("python3");
+    c.arg(checkout().join("tools/browser.py")).arg(url).args(["--width", &w.to_string(), "--height", &h.to_string()]);
+    c.args(["--timeout", "90", "--status-json"]).arg(&status);
+    if let Some(s) = shot {
+        c.arg("--out").arg(s);
+    }
+    if let Some(e) = expect_error {
+        c.args(["--expect-error", e]);
+    }
+    let out = c.output().expect("python3 runs tools/browser.py");
+    let status = std::fs::read_to_string(&status).ok().and_then(|s| serde_json::from_str(&s).ok()).unwrap_or_default();
+    Run {
+        code: out.status.code().unwrap_or(-1),
+        stdout: String::from_utf8_lossy(&out.stdout).into(),
+        stderr: String::from_utf8_lossy(&out.stderr).into(),
+        status,
+    }
+}
+
+/// The view the tests fly: over Zürich from its southern edge, looking north.
+const EYE: [f64; 3] = [6400.0, 640.0, 1126.0];
+const LOOK: [f64; 3] = [6400.0, 7680.0, 393.0];
+const SIZE: (u32, u32) = (480, 270);
+const TOLERANCE_PX: f64 = 2.0;
+
+/// The native reference: the local file refined for the page's camera and drawn offscreen.
+fn native_render(local: &Path) -> (Vec<u8>, u64) {
+    let terrain = Arc::new(TerrainFile::open(local).unwrap());
+    let orbit = Orbit::looking(DVec3::from(EYE), DVec3::from(LOOK), 1.0);
+    let camera = orbit.camera(SIZE.0, SIZE.1).unwrap();
+    let options = RefineOptions { tolerance_px: TOLERANCE_PX, heights: true, ..Default::default() };
+    let mut strip = Strip::new();
+    Refiner::new(1).unwrap().refine_file(&terrain, &camera, &options, &mut strip).unwrap();
+    relief_core::heightcache::exact_heights(&terrain, &strip.vertices, &mut strip.morph).unwrap();
+    let look = look_of(terrain.header(), 1.0);
+    let positions = positions(terrain.header(), &strip, &look, 1.0);
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = pollster::block_on(instance.request_adapter(&Default::default()))
+        .expect("a Vulkan adapter (lavapipe: apt-get install mesa-vulkan-drivers)");
+    let (device, queue) = pollster::block_on(adapter.request_device(&Default::default())).unwrap();
+    let uniform = FrameUniform::new(&camera, &look, true);
+    let rgba = render_offscreen(&device, &queue, &positions, SIZE, &uniform).unwrap();
+    (rgba, strip.vertices.len().saturating_sub(2) as u64)
+}
+
+/// RGBA8 rows of a PNG.
+fn decode_png(path: &Path) -> (u32, u32, Vec<u8>) {
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let rgba = match info.color_type {
+        png::ColorType::Rgba => buf[..info.buffer_size()].to_vec(),
+        png::ColorType::Rgb => buf[..info.buffer_size()].chunks(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect(),
+        other => panic!("{}: a {other:?} PNG", path.display()),
+    };
+    (info.width, info.height, rgba)
+}
+
+/// The page's first complete frame is the native render of the same view: mean channel
+/// difference ≤ 1 level of 255, and ≤ 1 % of pixels off by more than 24 levels in any channel
+/// (SwiftShader and lavapipe rasterise edges independently; measured here: 0.07 levels, 0.1 %).
+/// The opening request is 64 KiB, so the rest comes progressively: in a few round trips, each
+/// byte once, as the server's log shows.
+#[test]
+fn the_page_draws_zurich_as_the_native_renderer_does_fetching_each_byte_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let mut files = viewer_files();
+    files.push(("zurich.relief".into(), local.clone()));
+    let server = serve(files, ServeOptions::default());
+    let [ex, ey, ez] = EYE;
+    let [lx, ly, lz] = LOOK;
+    let url = format!(
+        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&first=65536",
+        server.url("")
+    );
+    let shot = dir.path().join("page.png");
+    let run = browse(&url, dir.path(), SIZE, Some(&shot), None);
+    assert_eq!(run.code, 0, "{url}\n{}\n{}", run.stdout, run.stderr);
+    let s = &run.status;
+    eprintln!("page status: {s}");
+    assert_eq!(s["complete"], true, "{s}");
+
+    let (native, native_triangles) = native_render(&local);
+    assert_eq!(s["triangles"].as_u64(), Some(native_triangles), "the page refined the native strip: {s}");
+    let (w, h, page) = decode_png(&shot);
+    assert_eq!((w, h), SIZE, "the screenshot's size");
+    let diffs: Vec<u8> =
+        page.iter().zip(&native).enumerate().filter(|(i, _)| i % 4 != 3).map(|(_, (a, b))| a.abs_diff(*b)).collect();
+    let mean = diffs.iter().map(|&d| d as f64).sum::<f64>() / diffs.len() as f64;
+    let off = page.chunks(4).zip(native.chunks(4)).filter(|(a, b)| (0..3).any(|k| a[k].abs_diff(b[k]) > 24)).count();
+    let off_share = off as f64 / (w * h) as f64;
+    eprintln!("page vs native: mean difference {mean:.2} levels, {:.2} % of pixels off by > 24", 100.0 * off_share);
+    if mean > 1.0 || off_share > 0.01 {
+        let keep = checkout().join("target/web-test");
+        std::fs::create_dir_all(&keep).unwrap();
+        std::fs::copy(&shot, keep.join("page.png")).unwrap();
+        let mut enc = png::Encoder::new(std::fs::File::create(keep.join("native.png")).unwrap(), w, h);
+        enc.set_color(png::ColorType::Rgba);
+        enc.write_header().unwrap().write_image_data(&native).unwrap();
+        panic!("the page differs from the native render (mean {mean:.2}, {off} pixels off): see {}", keep.display());
+    }
+    // A sky-only frame would pass a comparison of two sky-only frames: the terrain covers much.
+    let sky = native.chunks(4).filter(|p| p[..3] == native[..3]).count();
+    assert!(sky < (w * h) as usize * 7 / 10, "the view shows terrain ({sky} sky pixels)");
+
+    // The server's log: each terrain byte sent once, the page's ranges those of the log.
+    let log: Vec<(u64, u64)> =
+        server.log().iter().filter(|l| l.name == "zurich.relief").filter_map(|l| l.range).collect();
+    let mut sorted = log.clone();
+    sorted.sort_unstable();
+    assert!(sorted.windows(2).all(|p| p[0].1 <= p[1].0), "a byte fetched twice: {sorted:?}");
+    let page_ranges: Vec<(u64, u64)> = serde_json::from_value(s["ranges"].clone()).unwrap();
+    let mut page_sorted = page_ranges.clone();
+    page_sorted.sort_unstable();
+    assert_eq!(page_sorted, sorted, "the page fetched what the server sent");
+    let rounds = s["first_complete_round_trips"].as_u64().unwrap();
+    assert!((2..=4).contains(&rounds), "first complete frame within a few round trips: {s}");
+    assert!(s["frames"].as_u64().unwrap() >= 2, "coarser frames were drawn while the data came: {s}");
+    assert!(
+        server.log().iter().all(|l| l.status == 200 || l.status == 206),
+        "every request answered: {:?}",
+        server.log()
+    );
+}
+
+/// Every kind of bad input is a one-line message in the page, never a blank canvas.
+#[test]
+fn bad_input_is_a_message_in_the_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    // A file newer than the viewer: the version field (bytes 8..12) raised.
+    let newer = dir.path().join("newer.relief");
+    let mut bytes = std::fs::read(&local).unwrap();
+    bytes[8..12].copy_from_slice(&99u32.to_le_bytes());
+    std::fs::write(&newer, &bytes).unwrap();
+    let mut files = viewer_files();
+    files.push(("zurich.relief".into(), local.clone()));
+    files.push(("newer.relief".into(), newer));
+    let server = serve(files.clone(), ServeOptions::default());
+    let base = server.url("");
+    // A server that ignores Range.
+    let faults = Arc::new(Faults::default());
+    faults.ignore_range.store(true, std::sync::atomic::Ordering::SeqCst);
+    let no_ranges = serve(files, ServeOptions { faults, latency: Duration::ZERO });
+    // A server on another origin that sends no CORS headers: Python's.
+    let other = tempfile::tempdir().unwrap();
+    std::fs::copy(&local, other.path().join("zurich.relief")).unwrap();
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = listener.local_addr().unwrap().port();
+    drop(listener);
+    let mut python = Command::new("python3")
+        .args(["-m", "http.server", &port.to_string(), "--bind", "127.0.0.1"])
+        .current_dir(other.path())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    for _ in 0..100 {
+        if std::net::TcpStream::connect(("127.0.0.1", port)).is_ok() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let cases = [
+        (format!("{base}#relief_web.js"), "not a relief terrain file"),
+        (format!("{base}#newer.relief"), "newer than this viewer"),
+        (format!("{base}#missing.relief"), "answered 404"),
+        (format!("{}#zurich.relief", no_ranges.url("")), "does not support range requests"),
+        (format!("{base}#http://127.0.0.1:{port}/zurich.relief"), "refuses cross-origin reads"),
+        (format!("{base}#zurich.relief&tau=fast"), "#tau=fast: not a number"),
+        (base.clone(), "No terrain named"),
+    ];
+    let mut failures = Vec::new();
+    for (url, want) in &cases {
+        let run = browse(url, dir.path(), (320, 200), None, Some(want));
+        let error = run.status["error"].as_str().unwrap_or_default().to_string();
+        eprintln!("{url}: {error}");
+        if run.code != 0 || error.lines().count() != 1 {
+            failures
+                .push(format!("{url}: wanted an error with '{want}', got '{error}'\n{}\n{}", run.stdout, run.stderr));
+        }
+    }
+    let _ = python.kill();
+    let _ = python.wait();
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
