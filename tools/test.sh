@@ -19,6 +19,9 @@ command -v gdalinfo >/dev/null || need+=(gdal-bin)
 # The `gdal` feature (LERC, VRT, JPEG and the other formats only libgdal reads; ZSTD, LZW and
 # Deflate GeoTIFFs are read natively) links the system's GDAL.
 pkg-config --exists gdal 2>/dev/null || need+=(libgdal-dev pkg-config)
+# The web viewer's test opens its page in Debian's headless Chromium (WebGL2 on SwiftShader).
+{ [ -x /usr/lib/chromium/chromium-headless-shell ] || [ -x /usr/lib/chromium/chromium ]; } ||
+  need+=(chromium-headless-shell)
 if [ ${#need[@]} -gt 0 ] && command -v apt-get >/dev/null; then
   sudo=""; [ "$(id -u)" -eq 0 ] || sudo="sudo"
   echo "tools/test.sh: installing ${need[*]}" >&2
@@ -37,4 +40,9 @@ for c in rustfmt clippy; do
 done
 cargo fmt --all --check
 cargo clippy --locked --workspace --all-targets --features gdal -- -D warnings
+# The web viewer: its wasm build linted too (the page's code compiles only there), then built
+# into target/viewer for the browser test (tests/web).
+rustup target list --installed | grep -qx wasm32-unknown-unknown || rustup target add wasm32-unknown-unknown
+cargo clippy --locked -p relief-web --target wasm32-unknown-unknown -- -D warnings
+bash tools/web.sh
 cargo test --locked --workspace --all-targets --features gdal

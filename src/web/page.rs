@@ -101,7 +101,7 @@ fn parse_params(fragment: &str) -> Result<Params, String> {
             "hud" => p.hud = v != "0",
             "first" => {
                 let b = number(k, v)?;
-                if !(b >= 4096.0 && b <= 1e9) {
+                if !(4096.0..=1e9).contains(&b) {
                     return Err(format!("#first={v}: the opening request must be 4096 bytes to 1 GB"));
                 }
                 p.first_bytes = (b as u64).div_ceil(4096) * 4096;
@@ -306,10 +306,8 @@ impl App {
                 // Lost or outdated (a resize under way): configure again and draw next frame.
                 self.surface.configure(&self.device, &self.config);
                 self.dirty = true;
-                return match other {
-                    wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => Ok(()),
-                    _ => Ok(()),
-                };
+                drop(other);
+                return Ok(());
             }
         };
         let view = frame
@@ -547,7 +545,9 @@ async fn run(status: Rc<RefCell<Status>>) -> Result<(), String> {
 
 /// Draws every animation frame.
 fn animate(app: Rc<RefCell<App>>) {
-    let tick: Rc<RefCell<Option<Closure<dyn FnMut()>>>> = Rc::new(RefCell::new(None));
+    /// The frame callback, which asks for itself again.
+    type Tick = Rc<RefCell<Option<Closure<dyn FnMut()>>>>;
+    let tick: Tick = Rc::new(RefCell::new(None));
     let again = tick.clone();
     *tick.borrow_mut() = Some(Closure::new(move || {
         App::frame(&app);

@@ -270,11 +270,14 @@ pub fn expand_inputs(inputs: &[std::path::PathBuf]) -> Result<Vec<std::path::Pat
 ///
 /// Anything else is [`Error::UnknownFormat`], with the first bytes and the extension as a hint.
 pub fn detect(path: &Path) -> Result<DemFormat> {
-    let mut file = File::open(path).at(path)?;
-    let size = file.metadata().at(path)?.len();
-    let mut head = Vec::with_capacity(512);
-    (&mut file).take(512).read_to_end(&mut head).at(path)?;
-    drop(file);
+    // The file is closed at the end of this block, before any reader opens it again.
+    let (size, head) = {
+        let mut file = File::open(path).at(path)?;
+        let size = file.metadata().at(path)?.len();
+        let mut head = Vec::with_capacity(512);
+        (&mut file).take(512).read_to_end(&mut head).at(path)?;
+        (size, head)
+    };
 
     let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
 

@@ -39,8 +39,8 @@ impl HostedFile {
     /// except at the file's end. Counted as one request of `bytes.len()` body bytes.
     pub fn insert(&self, offset: u64, bytes: &[u8]) -> Result<()> {
         let end = offset.checked_add(bytes.len() as u64).filter(|&e| e <= self.len);
-        let whole = bytes.len() as u64 % PAGE_BYTES == 0 || end == Some(self.len);
-        if offset % PAGE_BYTES != 0 || end.is_none() || !whole {
+        let whole = (bytes.len() as u64).is_multiple_of(PAGE_BYTES) || end == Some(self.len);
+        if !offset.is_multiple_of(PAGE_BYTES) || end.is_none() || !whole {
             return Err(Error::remote(
                 &self.path.display().to_string(),
                 format!(

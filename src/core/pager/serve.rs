@@ -1023,6 +1023,49 @@ mod tests {
         assert_eq!(server.requests(), 3);
     }
 
+    /// What a browser needs: CORS on every answer (ranges and validators readable), a
+    /// preflight answered, media types by extension, `/` as index.html; and every request logged.
+    #[test]
+    fn browsers_may_read_across_origins_and_every_request_is_logged() {
+        let dir = tempfile::tempdir().unwrap();
+        let (page, wasm, terrain) =
+            (dir.path().join("index.html"), dir.path().join("a.wasm"), dir.path().join("t.relief"));
+        std::fs::write(&page, "<!doctype html>").unwrap();
+        std::fs::write(&wasm, b"\0asm").unwrap();
+        std::fs::write(&terrain, content(1000)).unwrap();
+        let files = vec![("index.html".into(), page), ("a.wasm".into(), wasm), ("t.relief".into(), terrain)];
+        let server = Server::start(files, LOOPBACK, ServeOptions::default()).unwrap();
+        let mut c = Client::new(&server);
+        let r = c.get("/t.relief", "Range: bytes=10-19\r\nOrigin: http://elsewhere\r\n");
+        assert_eq!((r.status, r.header("access-control-allow-origin")), (206, Some("*")));
+        let exposed = r.header("access-control-expose-headers").unwrap_or_default();
+        assert!(exposed.contains("Content-Range") && exposed.contains("ETag"), "{exposed}");
+        assert_eq!(r.header("content-type"), Some("application/octet-stream"));
+        c.send("OPTIONS /t.relief HTTP/1.1\r\nHost: x\r\nAccess-Control-Request-Headers: range\r\n\r\n");
+        let r = c.read(true);
+        assert_eq!(r.status, 204);
+        assert!(r.header("access-control-allow-headers").unwrap_or_default().contains("Range"));
+        assert_eq!(r.header("access-control-allow-origin"), Some("*"));
+        let r = c.get("/a.wasm", "");
+        assert_eq!((r.status, r.header("content-type")), (200, Some("application/wasm")));
+        let r = c.get("/", "");
+        assert_eq!((r.status, r.header("content-type")), (200, Some("text/html; charset=utf-8")));
+        assert_eq!(r.body, b"<!doctype html>");
+        assert_eq!(c.get("/gone.relief", "").status, 404);
+        let log: Vec<(String, u16, Option<(u64, u64)>)> =
+            server.log().into_iter().map(|l| (l.name, l.status, l.range)).collect();
+        assert_eq!(
+            log,
+            [
+                ("t.relief".into(), 206, Some((10, 20))),
+                ("a.wasm".into(), 200, Some((0, 4))),
+                ("".into(), 200, Some((0, 15))),
+                ("gone.relief".into(), 404, None),
+            ],
+            "the preflight is not a read"
+        );
+    }
+
     #[test]
     fn head_has_the_headers_and_no_body() {
         let (_d, server, _) = serve(5000, ServeOptions::default());
