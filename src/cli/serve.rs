@@ -16,8 +16,9 @@ use super::fmt_bytes;
 #[derive(clap::Args)]
 pub struct Args {
     /// Files to serve, each under its file name (http://HOST:PORT/NAME); each request re-reads
-    /// the file, so a file replaced on disk is served anew (with a new ETag).
-    #[arg(required = true, value_name = "FILE")]
+    /// the file, so a file replaced on disk is served anew (with a new ETag). With --viewer and
+    /// no FILE: the bundled terrain (data/zurich_25m_i16.tif, converted on first use).
+    #[arg(required_unless_present = "viewer", value_name = "FILE")]
     pub files: Vec<PathBuf>,
     /// Address to listen on (0.0.0.0 or :: for every interface).
     #[arg(long, value_name = "IP", default_value = "127.0.0.1")]
@@ -65,8 +66,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if !(a.latency_ms >= 0.0 && a.latency_ms.is_finite() && a.latency_ms < 1e9) {
         bail!("--latency-ms: expected milliseconds ≥ 0, got {}", a.latency_ms);
     }
-    let mut files = Vec::with_capacity(a.files.len());
-    for path in &a.files {
+    let given =
+        if a.files.is_empty() { vec![relief::bundled_terrain(super::progress(false))?] } else { a.files.clone() };
+    let mut files = Vec::with_capacity(given.len());
+    for path in &given {
         let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
             bail!("{}: no file name (or not UTF-8) to serve it under", path.display());
         };

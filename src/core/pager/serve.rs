@@ -1052,8 +1052,8 @@ mod tests {
         assert_eq!((r.status, r.header("content-type")), (200, Some("text/html; charset=utf-8")));
         assert_eq!(r.body, b"<!doctype html>");
         assert_eq!(c.get("/gone.relief", "").status, 404);
-        let log: Vec<(String, u16, Option<(u64, u64)>)> =
-            server.log().into_iter().map(|l| (l.name, l.status, l.range)).collect();
+        type Entry = (String, u16, Option<(u64, u64)>);
+        let log: Vec<Entry> = server.log().into_iter().map(|l| (l.name, l.status, l.range)).collect();
         assert_eq!(
             log,
             [
