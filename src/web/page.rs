@@ -46,6 +46,9 @@ struct Status {
     /// Median milliseconds of refinement and of a whole frame, over the frames drawn so far.
     refine_ms_median: f64,
     frame_ms_median: f64,
+    /// Mean milliseconds of refinement per frame (the browser's clock is coarse, 0.1 ms: over
+    /// many frames the mean resolves what one reading cannot).
+    refine_ms_mean: f64,
     /// Frames per second over the last second of frames drawn.
     fps: f64,
     /// Every byte range fetched, in order: `[start, end)`.
@@ -343,6 +346,7 @@ impl App {
         s.z_exaggeration = self.scene.options.z_exaggeration;
         (s.width, s.height) = (w, h);
         s.refine_ms_median = median(&self.refine_ms);
+        s.refine_ms_mean = self.refine_ms.iter().sum::<f64>() / self.refine_ms.len().max(1) as f64;
         s.frame_ms_median = median(&self.frame_ms);
         s.fps = self.frame_times.len() as f64;
         let hud = format!(

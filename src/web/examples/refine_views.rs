@@ -17,8 +17,13 @@ fn main() -> Result<(), String> {
     let number = |i: usize, default: f64| -> Result<f64, String> {
         args.get(i).map_or(Ok(default), |v| v.parse().map_err(|_| format!("argument {i}: not a number: {v}")))
     };
-    let (frames, spin, w, h, tau) =
-        (number(1, 120.0)? as usize, number(2, 2.0)?, number(3, 960.0)? as u32, number(4, 540.0)? as u32, number(5, 2.0)?);
+    let (frames, spin, w, h, tau) = (
+        number(1, 120.0)? as usize,
+        number(2, 2.0)?,
+        number(3, 960.0)? as u32,
+        number(4, 540.0)? as u32,
+        number(5, 2.0)?,
+    );
     let bytes = std::fs::read(path).map_err(|e| format!("{path}: {e}"))?;
     let mut scene = Scene::open(path, bytes.len() as u64, &bytes).map_err(|e| e.to_string())?;
     scene.options.tolerance_px = tau;
@@ -37,10 +42,11 @@ fn main() -> Result<(), String> {
         }
         triangles.push(scene.triangles());
     }
+    let mean = ms.iter().sum::<f64>() / ms.len().max(1) as f64;
     ms.sort_by(f64::total_cmp);
     triangles.sort_unstable();
     println!(
-        "{{\"frames\": {frames}, \"refine_ms_median\": {:.3}, \"triangles_median\": {}}}",
+        "{{\"frames\": {frames}, \"refine_ms_median\": {:.4}, \"refine_ms_mean\": {mean:.4}, \"triangles_median\": {}}}",
         ms[ms.len() / 2],
         triangles[triangles.len() / 2]
     );
