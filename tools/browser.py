@@ -123,6 +123,7 @@ def browser_flags(width, height, profile):
         "--disable-renderer-backgrounding",
         "--disable-backgrounding-occluded-windows",
         "--force-device-scale-factor=1",
+    ] + [f for f in os.environ.get("RELIEF_CHROMIUM_FLAGS", "").split() if f] + [
         "about:blank",
     ]
 

@@ -285,58 +285,99 @@ impl Renderer {
     }
 }
 
-/// Native only (the tests' reference image): draws the strip `positions` for `uniform` into a new
-/// `width × height` sRGB texture on `device` and reads it back, RGBA8 rows from the top.
+/// A frame drawn into a texture of its own and copied into a mappable buffer: the tests'
+/// reference image natively, and in the page the pixels a WebGPU canvas cannot screenshot.
+pub struct Readback {
+    /// Kept until the pixels are read: a browser's WebGPU destroys what wgpu drops at once.
+    _texture: wgpu::Texture,
+    _renderer: Renderer,
+    buffer: wgpu::Buffer,
+    row_bytes: u32,
+    width: u32,
+    height: u32,
+}
+
+impl Readback {
+    /// Draws the strip `positions` for `uniform` into a new `width × height` sRGB texture and
+    /// queues its copy into a buffer.
+    pub fn draw(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        positions: &[[f32; 3]],
+        (width, height): (u32, u32),
+        uniform: &FrameUniform,
+    ) -> Readback {
+        let format = wgpu::TextureFormat::Rgba8UnormSrgb;
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("relief web offscreen"),
+            size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let mut renderer = Renderer::new(device, format);
+        renderer.set_strip(device, queue, positions);
+        renderer.draw(device, queue, &texture.create_view(&Default::default()), (width, height), uniform);
+        let row_bytes = (width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("relief web readback"),
+            size: row_bytes as u64 * height as u64,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.copy_texture_to_buffer(
+            texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(row_bytes),
+                    rows_per_image: Some(height),
+                },
+            },
+            wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+        );
+        queue.submit([encoder.finish()]);
+        Readback { _texture: texture, _renderer: renderer, buffer, row_bytes, width, height }
+    }
+
+    /// Asks for the buffer's mapping; `done` is called when it is mapped (natively, after a
+    /// device poll; in a page, from the event loop).
+    pub fn map(&self, done: impl FnOnce(Result<(), wgpu::BufferAsyncError>) + wgpu::WasmNotSend + 'static) {
+        self.buffer.slice(..).map_async(wgpu::MapMode::Read, done);
+    }
+
+    /// The pixels once mapped: RGBA8 rows from the top.
+    pub fn pixels(&self) -> Result<Vec<u8>, String> {
+        let mapped = self.buffer.slice(..).get_mapped_range().map_err(|e| format!("reading the image back: {e}"))?;
+        let (row, w) = (self.row_bytes as usize, self.width as usize * 4);
+        let mut out = Vec::with_capacity(w * self.height as usize);
+        for r in 0..self.height as usize {
+            out.extend_from_slice(&mapped[r * row..r * row + w]);
+        }
+        Ok(out)
+    }
+}
+
+/// Native only (the tests' reference image): [`Readback`] drawn, waited for, read.
 #[cfg(not(target_arch = "wasm32"))]
 pub fn render_offscreen(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     positions: &[[f32; 3]],
-    (width, height): (u32, u32),
+    size: (u32, u32),
     uniform: &FrameUniform,
 ) -> Result<Vec<u8>, String> {
-    let format = wgpu::TextureFormat::Rgba8UnormSrgb;
-    let texture = device.create_texture(&wgpu::TextureDescriptor {
-        label: Some("relief web offscreen"),
-        size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format,
-        usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-        view_formats: &[],
-    });
-    let mut renderer = Renderer::new(device, format);
-    renderer.set_strip(device, queue, positions);
-    renderer.draw(device, queue, &texture.create_view(&Default::default()), (width, height), uniform);
-    let row = (width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-    let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("relief web readback"),
-        size: row as u64 * height as u64,
-        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-        mapped_at_creation: false,
-    });
-    let mut encoder = device.create_command_encoder(&Default::default());
-    encoder.copy_texture_to_buffer(
-        texture.as_image_copy(),
-        wgpu::TexelCopyBufferInfo {
-            buffer: &buffer,
-            layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(row), rows_per_image: Some(height) },
-        },
-        wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
-    );
-    queue.submit([encoder.finish()]);
-    let slice = buffer.slice(..);
-    slice.map_async(wgpu::MapMode::Read, |_| {});
+    let readback = Readback::draw(device, queue, positions, size, uniform);
+    readback.map(|_| {});
     device
         .poll(wgpu::PollType::Wait { submission_index: None, timeout: None })
         .map_err(|e| format!("waiting for the GPU: {e}"))?;
-    let mapped = slice.get_mapped_range().map_err(|e| format!("reading the image back: {e}"))?;
-    let mut out = Vec::with_capacity((width * height * 4) as usize);
-    for r in 0..height as usize {
-        out.extend_from_slice(&mapped[r * row as usize..r * row as usize + width as usize * 4]);
-    }
-    Ok(out)
+    readback.pixels()
 }
 
 /// Linear to sRGB, as the shader's `srgb_encode`.

@@ -16,7 +16,7 @@ use web_sys::{HtmlCanvasElement, HtmlElement, Request, RequestInit, Response};
 
 use relief_core::refine::progressive::HostedRequest;
 
-use crate::draw::{FrameUniform, Renderer};
+use crate::draw::{FrameUniform, Readback, Renderer};
 use crate::scene::{Orbit, Scene, FIRST_RANGE_BYTES};
 
 /// What `window.relief.status()` returns (as a plain object).
@@ -53,6 +53,8 @@ struct Status {
     fps: f64,
     /// Every byte range fetched, in order: `[start, end)`.
     ranges: Vec<(u64, u64)>,
+    /// With `#readback=1`: the first complete frame's pixels are in `window.relief.pixels()`.
+    readback_done: bool,
 }
 
 /// The options of the address's fragment.
@@ -68,6 +70,20 @@ struct Params {
     hud: bool,
     /// Bytes of the opening request (whole pages).
     first_bytes: u64,
+    /// Which graphics API: WebGL2 (the default, `webgl2`), WebGPU (`webgpu`, not yet tested:
+    /// see ARCHITECTURE.md, "The web viewer"), or WebGPU where the browser has an adapter
+    /// (`auto`).
+    gpu: GpuChoice,
+    /// Once the first complete frame is drawn, draw it again into a texture and read it back
+    /// (`window.relief.pixels()`): what tests compare where a canvas cannot be screenshot.
+    readback: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum GpuChoice {
+    Auto,
+    WebGl2,
+    WebGpu,
 }
 
 fn parse_params(fragment: &str) -> Result<Params, String> {
@@ -82,6 +98,8 @@ fn parse_params(fragment: &str) -> Result<Params, String> {
         spin_deg: 0.0,
         hud: true,
         first_bytes: FIRST_RANGE_BYTES,
+        gpu: GpuChoice::WebGl2,
+        readback: false,
     };
     let number =
         |key: &str, v: &str| v.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or(format!("#{key}={v}: not a number"));
@@ -109,7 +127,16 @@ fn parse_params(fragment: &str) -> Result<Params, String> {
                 }
                 p.first_bytes = (b as u64).div_ceil(4096) * 4096;
             }
-            _ => return Err(format!("#{k}: unknown option (tau, z, eye, look, spin, hud, first)")),
+            "gpu" => {
+                p.gpu = match v {
+                    "auto" => GpuChoice::Auto,
+                    "webgl2" => GpuChoice::WebGl2,
+                    "webgpu" => GpuChoice::WebGpu,
+                    _ => return Err(format!("#gpu={v}: expected auto, webgl2 or webgpu")),
+                }
+            }
+            "readback" => p.readback = v != "0",
+            _ => return Err(format!("#{k}: unknown option (tau, z, eye, look, spin, hud, first, gpu, readback)")),
         }
     }
     if !(1.0..=100.0).contains(&p.z_exaggeration) {
@@ -213,6 +240,10 @@ fn open_error(url: &str, e: relief_core::Error) -> String {
 
 /// Everything the page holds once the terrain is open.
 struct App {
+    /// Kept for the page's life with the adapter: the browser's WebGPU stops serving mappings
+    /// ("no valid external Instance") once they go.
+    _instance: wgpu::Instance,
+    _adapter: wgpu::Adapter,
     scene: Scene,
     orbit: Orbit,
     url: String,
@@ -234,6 +265,8 @@ struct App {
     drag: Option<(i16, f64, f64)>,
     pinch: Option<f64>,
     failed: bool,
+    readback: bool,
+    pixels: Rc<RefCell<Option<String>>>,
 }
 
 fn median(v: &[f64]) -> f64 {
@@ -275,6 +308,8 @@ impl App {
 
     fn draw_frame(&mut self) -> Result<(), String> {
         let t0 = now_ms();
+        // WebGL2 maps buffers (a read-back) only when polled; WebGPU ignores it.
+        let _ = self.device.poll(wgpu::PollType::Poll);
         let dpr = window().device_pixel_ratio().max(1.0);
         let (w, h) = (
             ((self.canvas.client_width() as f64 * dpr) as u32).max(1),
@@ -341,6 +376,19 @@ impl App {
         if complete && s.first_complete_ms.is_none() {
             s.first_complete_ms = Some(end - self.started_ms);
             s.first_complete_round_trips = Some(progress.round_trips);
+            if self.readback {
+                read_back(
+                    Readback::draw(
+                        &self.device,
+                        &self.queue,
+                        &positions,
+                        (w, h),
+                        &FrameUniform::new(&camera, &look, true),
+                    ),
+                    self.status.clone(),
+                    self.pixels.clone(),
+                );
+            }
         }
         s.tolerance_px = self.scene.options.tolerance_px;
         s.z_exaggeration = self.scene.options.z_exaggeration;
@@ -407,6 +455,37 @@ fn spawn_fetch(app: Rc<RefCell<App>>, url: String, request: HostedRequest) {
     }
 }
 
+/// Maps `readback` and, once mapped, keeps its pixels (RGBA8 rows from the top, base64) for
+/// `window.relief.pixels()`.
+fn read_back(readback: Readback, status: Rc<RefCell<Status>>, pixels: Rc<RefCell<Option<String>>>) {
+    let mut resolve: Option<js_sys::Function> = None;
+    let mapped = js_sys::Promise::new(&mut |res, _| resolve = Some(res));
+    readback.map(move |r| {
+        if let Some(f) = resolve {
+            let answer = match r {
+                Ok(()) => JsValue::NULL,
+                Err(e) => JsValue::from_str(&e.to_string()),
+            };
+            let _ = f.call1(&JsValue::NULL, &answer);
+        }
+    });
+    spawn_local(async move {
+        let answer = JsFuture::from(mapped).await.unwrap_or(JsValue::NULL);
+        if let Some(e) = answer.as_string() {
+            show_error(&status, &format!("reading the frame back: the buffer could not be mapped ({e})"));
+            return;
+        }
+        match readback.pixels() {
+            Ok(rgba) => {
+                use base64::Engine;
+                *pixels.borrow_mut() = Some(base64::engine::general_purpose::STANDARD.encode(rgba));
+                status.borrow_mut().readback_done = true;
+            }
+            Err(e) => show_error(&status, &e),
+        }
+    });
+}
+
 fn show_error(status: &Rc<RefCell<Status>>, message: &str) {
     status.borrow_mut().error = Some(message.to_string());
     if let Ok(e) = element::<HtmlElement>("message") {
@@ -416,14 +495,25 @@ fn show_error(status: &Rc<RefCell<Status>>, message: &str) {
     web_sys::console::error_1(&JsValue::from_str(message));
 }
 
-/// `window.relief = { status() }`.
-fn expose_status(status: Rc<RefCell<Status>>) -> Result<(), String> {
+thread_local! {
+    /// The page's status, for the GPU's error handler.
+    static GPU_STATUS: RefCell<Option<Rc<RefCell<Status>>>> = const { RefCell::new(None) };
+}
+
+/// `window.relief = { status(), pixels() }`.
+fn expose_status(status: Rc<RefCell<Status>>, pixels: Rc<RefCell<Option<String>>>) -> Result<(), String> {
     let get = Closure::<dyn Fn() -> JsValue>::new(move || {
         let json = serde_json::to_string(&*status.borrow()).unwrap_or_else(|_| "null".into());
         js_sys::JSON::parse(&json).unwrap_or(JsValue::NULL)
     });
     let relief = js_sys::Object::new();
     js_sys::Reflect::set(&relief, &"status".into(), get.as_ref()).map_err(|e| js_message(&e))?;
+    let read = Closure::<dyn Fn() -> JsValue>::new(move || match &*pixels.borrow() {
+        Some(b) => JsValue::from_str(b),
+        None => JsValue::NULL,
+    });
+    js_sys::Reflect::set(&relief, &"pixels".into(), read.as_ref()).map_err(|e| js_message(&e))?;
+    read.forget();
     js_sys::Reflect::set(&relief, &"version".into(), &env!("CARGO_PKG_VERSION").into()).map_err(|e| js_message(&e))?;
     js_sys::Reflect::set(&window(), &"relief".into(), &relief).map_err(|e| js_message(&e))?;
     get.forget();
@@ -433,7 +523,8 @@ fn expose_status(status: Rc<RefCell<Status>>) -> Result<(), String> {
 #[wasm_bindgen(start)]
 pub fn start() {
     let status = Rc::new(RefCell::new(Status::default()));
-    if let Err(e) = expose_status(status.clone()) {
+    let pixels = Rc::new(RefCell::new(None));
+    if let Err(e) = expose_status(status.clone(), pixels.clone()) {
         web_sys::console::error_1(&JsValue::from_str(&e));
     }
     // A new fragment is a new terrain or view: start again.
@@ -443,13 +534,13 @@ pub fn start() {
     window().set_onhashchange(Some(reload.as_ref().unchecked_ref()));
     reload.forget();
     spawn_local(async move {
-        if let Err(e) = run(status.clone()).await {
+        if let Err(e) = run(status.clone(), pixels).await {
             show_error(&status, &e);
         }
     });
 }
 
-async fn run(status: Rc<RefCell<Status>>) -> Result<(), String> {
+async fn run(status: Rc<RefCell<Status>>, pixels: Rc<RefCell<Option<String>>>) -> Result<(), String> {
     let started_ms = now_ms();
     let location = window().location();
     let fragment = location.hash().unwrap_or_default();
@@ -486,17 +577,28 @@ async fn run(status: Rc<RefCell<Status>>) -> Result<(), String> {
             }
         }
     }
-    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
-        backends: wgpu::Backends::GL,
-        ..wgpu::InstanceDescriptor::new_without_display_handle()
-    });
+    let backends = match params.gpu {
+        GpuChoice::Auto => wgpu::Backends::BROWSER_WEBGPU | wgpu::Backends::GL,
+        GpuChoice::WebGl2 => wgpu::Backends::GL,
+        GpuChoice::WebGpu => wgpu::Backends::BROWSER_WEBGPU,
+    };
+    // Auto: WebGPU only where the browser gives an adapter (some expose `navigator.gpu` and
+    // none); asked for by name, as asked.
+    let descriptor = wgpu::InstanceDescriptor { backends, ..wgpu::InstanceDescriptor::new_without_display_handle() };
+    let instance = match params.gpu {
+        GpuChoice::Auto => wgpu::util::new_instance_with_webgpu_detection(descriptor).await,
+        _ => wgpu::Instance::new(descriptor),
+    };
     let surface = instance
         .create_surface(wgpu::SurfaceTarget::Canvas(canvas.clone()))
-        .map_err(|e| format!("this browser gives no WebGL2 canvas ({e})"))?;
+        .map_err(|e| format!("this browser gives no WebGPU or WebGL2 canvas ({e})"))?;
     let adapter = instance
         .request_adapter(&wgpu::RequestAdapterOptions { compatible_surface: Some(&surface), ..Default::default() })
         .await
-        .map_err(|e| format!("no WebGL2 adapter ({e})"))?;
+        .map_err(|e| match params.gpu {
+            GpuChoice::WebGpu => format!("no WebGPU adapter in this browser ({e}); #gpu=webgl2 draws with WebGL2"),
+            _ => format!("no graphics adapter ({e})"),
+        })?;
     let info = adapter.get_info();
     let (device, queue) = adapter
         .request_device(&wgpu::DeviceDescriptor {
@@ -505,7 +607,7 @@ async fn run(status: Rc<RefCell<Status>>) -> Result<(), String> {
             ..Default::default()
         })
         .await
-        .map_err(|e| format!("cannot open the WebGL2 device: {e}"))?;
+        .map_err(|e| format!("cannot open the {:?} device: {e}", info.backend))?;
     let dpr = window().device_pixel_ratio().max(1.0);
     let (w, h) =
         (((canvas.client_width() as f64 * dpr) as u32).max(1), ((canvas.client_height() as f64 * dpr) as u32).max(1));
@@ -518,9 +620,22 @@ async fn run(status: Rc<RefCell<Status>>) -> Result<(), String> {
     }
     surface.configure(&device, &config);
     let renderer = Renderer::new(&device, config.format);
+    // A GPU error (wgpu's default is to panic) is the page's one-line error. The handler must
+    // be Send, so it finds the status through the page's one thread's local.
+    GPU_STATUS.with(|g| *g.borrow_mut() = Some(status.clone()));
+    device.on_uncaptured_error(std::sync::Arc::new(|e: wgpu::Error| {
+        let first = e.to_string().lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join(": ");
+        GPU_STATUS.with(|g| {
+            if let Some(status) = &*g.borrow() {
+                show_error(status, &format!("graphics error: {first}"));
+            }
+        });
+    }));
     status.borrow_mut().backend = format!("{:?}: {}", info.backend, info.name);
 
     let app = Rc::new(RefCell::new(App {
+        _instance: instance,
+        _adapter: adapter,
         scene,
         orbit,
         url,
@@ -541,6 +656,8 @@ async fn run(status: Rc<RefCell<Status>>) -> Result<(), String> {
         drag: None,
         pinch: None,
         failed: false,
+        readback: params.readback,
+        pixels: pixels.clone(),
     }));
     controls(&app, &canvas)?;
     animate(app);

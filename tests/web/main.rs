@@ -57,7 +57,20 @@ struct Run {
 
 /// Opens `url` in headless Chromium at `w × h`; with `expect_error`, succeeds only if the page
 /// reports an error containing it.
-fn browse(url: &str, dir: &Path, (w, h): (u32, u32), shot: Option<&Path>, expect_error: Option<&str>) -> Run {
+fn browse(url: &str, dir: &Path, size: (u32, u32), shot: Option<&Path>, expect_error: Option<&str>) -> Run {
+    browse_with(url, dir, size, shot, expect_error, &[], &[])
+}
+
+/// [`browse`] with more arguments for tools/browser.py and variables for its environment.
+fn browse_with(
+    url: &str,
+    dir: &Path,
+    (w, h): (u32, u32),
+    shot: Option<&Path>,
+    expect_error: Option<&str>,
+    args: &[&str],
+    env: &[(&str, &str)],
+) -> Run {
     let status = dir.join(format!("status-{}.json", std::process::id()));
     let mut c = Command::new("python3");
     c.arg(checkout().join("tools/browser.py")).arg(url).args(["--width", &w.to_string(), "--height", &h.to_string()]);
@@ -68,6 +81,7 @@ fn browse(url: &str, dir: &Path, (w, h): (u32, u32), shot: Option<&Path>, expect
     if let Some(e) = expect_error {
         c.args(["--expect-error", e]);
     }
+    c.args(args).envs(env.iter().copied());
     let out = c.output().expect("python3 runs tools/browser.py");
     let status = std::fs::read_to_string(&status).ok().and_then(|s| serde_json::from_str(&s).ok()).unwrap_or_default();
     Run {
@@ -133,7 +147,7 @@ fn the_page_draws_zurich_as_the_native_renderer_does_fetching_each_byte_once() {
     let [ex, ey, ez] = EYE;
     let [lx, ly, lz] = LOOK;
     let url = format!(
-        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&first=65536",
+        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&first=65536&gpu=webgl2",
         server.url("")
     );
     let shot = dir.path().join("page.png");
@@ -142,26 +156,13 @@ fn the_page_draws_zurich_as_the_native_renderer_does_fetching_each_byte_once() {
     let s = &run.status;
     eprintln!("page status: {s}");
     assert_eq!(s["complete"], true, "{s}");
+    assert!(s["backend"].as_str().unwrap_or_default().starts_with("Gl:"), "drawn with WebGL2: {s}");
 
     let (native, native_triangles) = native_render(&local);
     assert_eq!(s["triangles"].as_u64(), Some(native_triangles), "the page refined the native strip: {s}");
     let (w, h, page) = decode_png(&shot);
     assert_eq!((w, h), SIZE, "the screenshot's size");
-    let diffs: Vec<u8> =
-        page.iter().zip(&native).enumerate().filter(|(i, _)| i % 4 != 3).map(|(_, (a, b))| a.abs_diff(*b)).collect();
-    let mean = diffs.iter().map(|&d| d as f64).sum::<f64>() / diffs.len() as f64;
-    let off = page.chunks(4).zip(native.chunks(4)).filter(|(a, b)| (0..3).any(|k| a[k].abs_diff(b[k]) > 24)).count();
-    let off_share = off as f64 / (w * h) as f64;
-    eprintln!("page vs native: mean difference {mean:.2} levels, {:.2} % of pixels off by > 24", 100.0 * off_share);
-    if mean > 1.0 || off_share > 0.01 {
-        let keep = checkout().join("target/web-test");
-        std::fs::create_dir_all(&keep).unwrap();
-        std::fs::copy(&shot, keep.join("page.png")).unwrap();
-        let mut enc = png::Encoder::new(std::fs::File::create(keep.join("native.png")).unwrap(), w, h);
-        enc.set_color(png::ColorType::Rgba);
-        enc.write_header().unwrap().write_image_data(&native).unwrap();
-        panic!("the page differs from the native render (mean {mean:.2}, {off} pixels off): see {}", keep.display());
-    }
+    compare_with_native(&page, &native, "page");
     // A sky-only frame would pass a comparison of two sky-only frames: the terrain covers much.
     let sky = native.chunks(4).filter(|p| p[..3] == native[..3]).count();
     assert!(sky < (w * h) as usize * 7 / 10, "the view shows terrain ({sky} sky pixels)");
@@ -184,6 +185,68 @@ fn the_page_draws_zurich_as_the_native_renderer_does_fetching_each_byte_once() {
         "every request answered: {:?}",
         server.log()
     );
+}
+
+/// `page` (RGBA8, [`SIZE`]) is `native` within the tolerance the tests state; else both are kept
+/// in target/web-test for a look.
+fn compare_with_native(page: &[u8], native: &[u8], what: &str) {
+    let (w, h) = SIZE;
+    assert_eq!(page.len(), native.len(), "{what}: image sizes");
+    let diffs: Vec<u8> =
+        page.iter().zip(native).enumerate().filter(|(i, _)| i % 4 != 3).map(|(_, (a, b))| a.abs_diff(*b)).collect();
+    let mean = diffs.iter().map(|&d| d as f64).sum::<f64>() / diffs.len() as f64;
+    let off = page.chunks(4).zip(native.chunks(4)).filter(|(a, b)| (0..3).any(|k| a[k].abs_diff(b[k]) > 24)).count();
+    let off_share = off as f64 / (w * h) as f64;
+    eprintln!("{what} vs native: mean difference {mean:.2} levels, {:.2} % of pixels off by > 24", 100.0 * off_share);
+    if mean > 1.0 || off_share > 0.01 {
+        let keep = checkout().join("target/web-test");
+        std::fs::create_dir_all(&keep).unwrap();
+        for (name, rgba) in [(format!("{what}.png"), page), ("native.png".to_string(), native)] {
+            let mut enc = png::Encoder::new(std::fs::File::create(keep.join(name)).unwrap(), w, h);
+            enc.set_color(png::ColorType::Rgba);
+            enc.write_header().unwrap().write_image_data(rgba).unwrap();
+        }
+        panic!("{what} differs from the native render (mean {mean:.2}, {off} pixels off): see {}", keep.display());
+    }
+}
+
+/// The read-back path (`#readback=1`: the first complete frame drawn again into a texture and
+/// read back in the page, what a WebGPU canvas needs since a screenshot does not show it),
+/// here on WebGL2: its pixels are the native render's within the same tolerance.
+#[test]
+fn the_page_reads_back_what_the_native_renderer_draws() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let mut files = viewer_files();
+    files.push(("zurich.relief".into(), local.clone()));
+    let server = serve(files, ServeOptions::default());
+    let [ex, ey, ez] = EYE;
+    let [lx, ly, lz] = LOOK;
+    let url = format!(
+        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&readback=1",
+        server.url("")
+    );
+    let run = browse_with(
+        &url,
+        dir.path(),
+        SIZE,
+        None,
+        None,
+        &[
+            "--ready-expr",
+            "window.relief && window.relief.status().readback_done === true",
+            "--status-expr",
+            "JSON.stringify({status: window.relief.status(), pixels: window.relief.pixels()})",
+        ],
+        &[],
+    );
+    assert_eq!(run.code, 0, "{url}\n{}\n{}", run.stdout, run.stderr);
+    let s = &run.status["status"];
+    use base64::Engine;
+    let pixels = base64::engine::general_purpose::STANDARD.decode(run.status["pixels"].as_str().unwrap()).unwrap();
+    let (native, native_triangles) = native_render(&local);
+    assert_eq!(s["triangles"].as_u64(), Some(native_triangles), "the page refined the native strip: {s}");
+    compare_with_native(&pixels, &native, "readback");
 }
 
 /// Every kind of bad input is a one-line message in the page, never a blank canvas.
