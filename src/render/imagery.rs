@@ -59,13 +59,7 @@ fn png_or_jpeg(path: &Path) -> Result<Option<bool>> {
 /// The world file beside `path`, by the conventions GIS tools use.
 fn world_file(path: &Path) -> Option<PathBuf> {
     let ext = path.extension()?.to_str()?.to_ascii_lowercase();
-    let short = match ext.as_str() {
-        "png" => "pgw",
-        "jpg" | "jpeg" => "jgw",
-        _ => "wld",
-    };
-    let long = format!("{ext}w");
-    [short, long.as_str(), "wld"].iter().map(|e| path.with_extension(e)).find(|p| p.exists())
+    relief_core::georef::drape::world_file_extensions(&ext).iter().map(|e| path.with_extension(e)).find(|p| p.exists())
 }
 
 impl std::fmt::Debug for Imagery {
@@ -160,19 +154,9 @@ impl Imagery {
             None => None,
             Some(wf) => {
                 let text = std::fs::read_to_string(&wf).map_err(|e| Error::io(&wf, e))?;
-                let v: Vec<f64> = text.split_whitespace().filter_map(|t| t.parse().ok()).collect();
-                let bad_wf = |what: &str| Error::BadDem { path: wf.clone(), problem: what.into() };
-                if v.len() != 6 || !v.iter().all(|x| x.is_finite()) {
-                    return Err(bad_wf("a world file has six numbers (A D B E C F)"));
-                }
-                let [a, d, b, e, c, f] = [v[0], v[1], v[2], v[3], v[4], v[5]];
-                if d != 0.0 || b != 0.0 {
-                    return Err(bad_wf("a rotated image is not supported (its world file has rotation terms)"));
-                }
-                if !(a > 0.0 && e < 0.0) {
-                    return Err(bad_wf("the image must be north up: pixel width > 0, height < 0"));
-                }
-                Some([c, a, f, -e])
+                let placement = relief_core::georef::drape::parse_world_file(&text)
+                    .map_err(|what| Error::BadDem { path: wf.clone(), problem: what.into() })?;
+                Some(placement)
             }
         })
     }
@@ -180,30 +164,13 @@ impl Imagery {
     /// Texture coordinates of grid posts: `u = a0 + a1·x`, `v = b0 + b1·y` (0..1 over the
     /// image, v down), and whether u wraps (a world image on a geographic terrain).
     pub fn uv_of_grid(&self, h: &Header) -> Result<([f32; 4], bool)> {
-        let (w, ht) = (self.width as f64, self.height as f64);
-        let Some([x0, dx, y0, dy]) = self.placement else {
-            // The image spans the DEM's posts (first to last post, pixel edges at the ends).
-            let [_, _, x1, y1] = h.valid_window;
-            let (sx, sy) = ((x1.max(2) - 1) as f64, (y1.max(2) - 1) as f64);
-            return Ok(([0.0, (1.0 / sx) as f32, 1.0, (-1.0 / sy) as f32], false));
-        };
-        let Some(g) = h.georef else {
-            return Err(Error::InvalidArgument(format!(
+        relief_core::georef::drape::uv_of_grid(self.width, self.height, self.placement, h).ok_or_else(|| {
+            Error::InvalidArgument(format!(
                 "{}: a world file places the image in a CRS, and the terrain has none; drop the world file to \
                  stretch the image over the DEM",
                 self.path.display()
-            )));
-        };
-        let (left, top) = (x0 - 0.5 * dx, y0 + 0.5 * dy);
-        let (span_x, span_y) = (w * dx, ht * dy);
-        let uv = [
-            ((g.origin[0] - left) / span_x) as f32,
-            (g.step[0] / span_x) as f32,
-            ((top - g.origin[1]) / span_y) as f32,
-            (-g.step[1] / span_y) as f32,
-        ];
-        let wraps = g.kind == crate::georef::CrsKind::Geographic && (span_x - 360.0).abs() < 1e-6 * 360.0;
-        Ok((uv, wraps))
+            ))
+        })
     }
 
     /// The image and its mip levels (each half the size, box-filtered), the first no larger than

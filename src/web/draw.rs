@@ -16,8 +16,16 @@ pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// The sky, linear RGB (the shader's `SKY`): the clear colour and the fog's.
 pub const SKY: [f32; 3] = [0.53, 0.70, 0.88];
 
-/// The nearest the camera sees, metres.
+/// The nearest any camera sees, metres.
 pub const NEAR_M: f64 = 1.0;
+
+/// The near plane for a view `distance_m` from what it looks at: a thousandth of it, at least
+/// [`NEAR_M`]. WebGL maps depth to [−1, 1], so reversed z near 0 loses the precision it has in
+/// [0, 1]; a near plane that keeps `near / distance` well above f32's step at 1 keeps depth
+/// ordered from a metre above Zürich to the whole globe.
+pub fn near_for(distance_m: f64) -> f64 {
+    (1e-3 * distance_m).max(NEAR_M)
+}
 
 /// The uniform block `Frame` of `shaders/web.wgsl`.
 #[repr(C)]
@@ -28,6 +36,8 @@ pub struct FrameUniform {
     pub sun_dir: [f32; 4],
     /// z_lo, z_hi (scene metres), fog distance (m), 1 when the target is not sRGB.
     pub ramp: [f32; 4],
+    /// 1 when an image is draped, how much the hillshade lights it (0..1), 1 when u wraps, 0.
+    pub imagery: [f32; 4],
 }
 
 /// What a frame is drawn with: the camera in scene coordinates (metres, z exaggerated), where the
@@ -44,10 +54,10 @@ pub struct Look {
 }
 
 impl FrameUniform {
-    /// The uniform for `camera` (scene coordinates) under `look`, for a target that is sRGB
-    /// (`srgb_target`) or not.
-    pub fn new(camera: &Camera, look: &Look, srgb_target: bool) -> FrameUniform {
-        let clip = camera.clip_from_rel(NEAR_M);
+    /// The uniform for `camera` (scene coordinates, near plane `near_m`: see [`near_for`]) under
+    /// `look`, for a target that is sRGB (`srgb_target`) or not.
+    pub fn new(camera: &Camera, look: &Look, near_m: f64, srgb_target: bool) -> FrameUniform {
+        let clip = camera.clip_from_rel(near_m.max(NEAR_M));
         let eye = (camera.eye_in_world - look.origin_in_scene).as_vec3();
         let sun = glam::Vec3::new(-0.45, 0.35, 0.82).normalize();
         FrameUniform {
@@ -60,7 +70,14 @@ impl FrameUniform {
                 look.fog_distance_m as f32,
                 if srgb_target { 0.0 } else { 1.0 },
             ],
+            imagery: [0.0; 4],
         }
+    }
+
+    /// With an image draped, lit by the hillshade `shade` (0..1), u wrapping or not.
+    pub fn with_imagery(mut self, shade: f32, wraps: bool) -> FrameUniform {
+        self.imagery = [1.0, shade.clamp(0.0, 1.0), if wraps { 1.0 } else { 0.0 }, 0.0];
+        self
     }
 
     /// The matrix, as glam's.
@@ -70,8 +87,9 @@ impl FrameUniform {
 }
 
 /// CPU reference of the shader's `shade` (linear RGB): a facet with unit normal `n` at scene
-/// height `z` (relative to the origin), `d` metres from the eye.
-pub fn shade(u: &FrameUniform, n: [f32; 3], z: f32, d: f32) -> [f32; 3] {
+/// height `z` (relative to the origin), `d` metres from the eye, under the draped image's
+/// colour `image` (linear; used where the uniform says an image is draped).
+pub fn shade(u: &FrameUniform, n: [f32; 3], z: f32, d: f32, image: [f32; 3]) -> [f32; 3] {
     let c0 = [0.13, 0.30, 0.10];
     let c1 = [0.42, 0.36, 0.18];
     let c2 = [0.45, 0.43, 0.40];
@@ -89,14 +107,118 @@ pub fn shade(u: &FrameUniform, n: [f32; 3], z: f32, d: f32) -> [f32; 3] {
     let sun = u.sun_dir;
     let light = 0.25 + 0.75 * (n[0] * sun[0] + n[1] * sun[1] + n[2] * sun[2]).max(0.0);
     let fog = (d / u.ramp[2]).clamp(0.0, 1.0);
-    mix(ramp.map(|c| c * light), SKY, fog * fog)
+    let c = if u.imagery[0] > 0.5 {
+        let k = 1.0 + (light - 1.0) * u.imagery[1];
+        image.map(|c| c * k)
+    } else {
+        ramp.map(|c| c * light)
+    };
+    mix(c, SKY, fog * fog)
+}
+
+/// A strip vertex as the shader takes it: scene metres relative to the origin, and where the
+/// draped image is (u, v; unused without one).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct Vertex {
+    pub in_scene: [f32; 3],
+    pub uv: [f32; 2],
+}
+
+/// One opaque white texel: the image bound when none is draped.
+fn white_texel(device: &wgpu::Device, queue: &wgpu::Queue) -> wgpu::Texture {
+    let texture = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("relief web no imagery"),
+        size: wgpu::Extent3d { width: 1, height: 1, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba8UnormSrgb,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    queue.write_texture(
+        texture.as_image_copy(),
+        &[255; 4],
+        wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4), rows_per_image: Some(1) },
+        wgpu::Extent3d { width: 1, height: 1, depth_or_array_layers: 1 },
+    );
+    texture
+}
+
+/// A texture with its trilinear sampler (u repeating where it `wraps`).
+fn image_texture(device: &wgpu::Device, texture: wgpu::Texture, wraps: bool) -> (wgpu::Texture, wgpu::Sampler) {
+    let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+        label: Some("relief web imagery"),
+        address_mode_u: if wraps { wgpu::AddressMode::Repeat } else { wgpu::AddressMode::ClampToEdge },
+        address_mode_v: wgpu::AddressMode::ClampToEdge,
+        mag_filter: wgpu::FilterMode::Linear,
+        min_filter: wgpu::FilterMode::Linear,
+        mipmap_filter: wgpu::MipmapFilterMode::Linear,
+        ..Default::default()
+    });
+    (texture, sampler)
+}
+
+/// The frame's bind group: the uniform, the image and its sampler.
+fn bind(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    uniform: &wgpu::Buffer,
+    (texture, sampler): &(wgpu::Texture, wgpu::Sampler),
+) -> wgpu::BindGroup {
+    let view = texture.create_view(&Default::default());
+    device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("relief web frame"),
+        layout,
+        entries: &[
+            wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() },
+            wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&view) },
+            wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::Sampler(sampler) },
+        ],
+    })
+}
+
+/// One mip level of an image: width, height, RGBA8 sRGB rows from the top.
+pub type Level = (u32, u32, Vec<u8>);
+
+/// An image's mip levels, finest first, each half the last (box filter over sRGB bytes, as
+/// both the page and the native reference compute them), down to 1 × 1.
+pub fn mip_levels(width: u32, height: u32, rgba: Vec<u8>) -> Vec<Level> {
+    let mut levels = vec![(width, height, rgba)];
+    loop {
+        let (w, h, last) = levels.last().expect("one level");
+        let (w, h) = (*w, *h);
+        if w <= 1 && h <= 1 {
+            break;
+        }
+        let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
+        let mut next = vec![0u8; (nw * nh * 4) as usize];
+        for y in 0..nh {
+            for x in 0..nw {
+                for c in 0..4 {
+                    let mut sum = 0u32;
+                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (sx, sy) = ((2 * x + dx).min(w - 1), (2 * y + dy).min(h - 1));
+                        sum += last[((sy * w + sx) * 4 + c) as usize] as u32;
+                    }
+                    next[((y * nw + x) * 4 + c) as usize] = ((sum + 2) / 4) as u8;
+                }
+            }
+        }
+        levels.push((nw, nh, next));
+    }
+    levels
 }
 
 /// The pipeline, its uniform and the strip's vertex buffer.
 pub struct Renderer {
     pipeline: wgpu::RenderPipeline,
     uniform: wgpu::Buffer,
+    group_layout: wgpu::BindGroupLayout,
     bind_group: wgpu::BindGroup,
+    /// The draped image (one texel when there is none) and its sampler.
+    image: (wgpu::Texture, wgpu::Sampler),
     vertices: Option<wgpu::Buffer>,
     vertex_count: u32,
     depth: Option<(wgpu::TextureView, u32, u32)>,
@@ -105,7 +227,7 @@ pub struct Renderer {
 
 impl Renderer {
     /// The pipeline for colour targets of `format`.
-    pub fn new(device: &wgpu::Device, format: wgpu::TextureFormat) -> Renderer {
+    pub fn new(device: &wgpu::Device, queue: &wgpu::Queue, format: wgpu::TextureFormat) -> Renderer {
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("relief web terrain"),
             source: wgpu::ShaderSource::Wgsl(SHADER.into()),
@@ -122,17 +244,34 @@ impl Renderer {
         };
         let group_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("relief web frame"),
-            entries: &[layout_entry],
+            entries: &[
+                layout_entry,
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 2,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
         });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("relief web"),
             bind_group_layouts: &[Some(&group_layout)],
             immediate_size: 0,
         });
-        let attributes =
-            [wgpu::VertexAttribute { format: wgpu::VertexFormat::Float32x3, offset: 0, shader_location: 0 }];
+        let attributes = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x2];
         let buffers = [Some(wgpu::VertexBufferLayout {
-            array_stride: 12,
+            array_stride: std::mem::size_of::<Vertex>() as u64,
             step_mode: wgpu::VertexStepMode::Vertex,
             attributes: &attributes,
         })];
@@ -178,15 +317,14 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("relief web frame"),
-            layout: &group_layout,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: uniform.as_entire_binding() }],
-        });
+        let image = image_texture(device, white_texel(device, queue), false);
+        let bind_group = bind(device, &group_layout, &uniform, &image);
         Renderer {
             pipeline,
             uniform,
+            group_layout,
             bind_group,
+            image,
             vertices: None,
             vertex_count: 0,
             depth: None,
@@ -194,13 +332,50 @@ impl Renderer {
         }
     }
 
+    /// Drapes `levels` (RGBA8 sRGB, finest first, each half the last: see [`mip_levels`]); u
+    /// repeats where it `wraps` around the world, else it is clamped.
+    pub fn set_image(
+        &mut self,
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        levels: &[(u32, u32, Vec<u8>)],
+        wraps: bool,
+    ) {
+        let Some(&(w, h, _)) = levels.first() else { return };
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("relief web imagery"),
+            size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+            mip_level_count: levels.len() as u32,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8UnormSrgb,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        for (k, (lw, lh, rgba)) in levels.iter().enumerate() {
+            queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &texture,
+                    mip_level: k as u32,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                rgba,
+                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(lw * 4), rows_per_image: Some(*lh) },
+                wgpu::Extent3d { width: *lw, height: *lh, depth_or_array_layers: 1 },
+            );
+        }
+        self.image = image_texture(device, texture, wraps);
+        self.bind_group = bind(device, &self.group_layout, &self.uniform, &self.image);
+    }
+
     /// Whether the colour target encodes sRGB itself (else the shader does).
     pub fn srgb_target(&self) -> bool {
         self.srgb_target
     }
 
-    /// Replaces the strip: `positions` in scene metres relative to the origin, strip order.
-    pub fn set_strip(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, positions: &[[f32; 3]]) {
+    /// Replaces the strip: its vertices in strip order.
+    pub fn set_strip(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, positions: &[Vertex]) {
         let bytes: &[u8] = bytemuck::cast_slice(positions);
         let fits = self.vertices.as_ref().is_some_and(|b| b.size() >= bytes.len() as u64);
         if !fits {
@@ -303,7 +478,8 @@ impl Readback {
     pub fn draw(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
-        positions: &[[f32; 3]],
+        positions: &[Vertex],
+        image: Option<(&[Level], bool)>,
         (width, height): (u32, u32),
         uniform: &FrameUniform,
     ) -> Readback {
@@ -318,7 +494,10 @@ impl Readback {
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
         });
-        let mut renderer = Renderer::new(device, format);
+        let mut renderer = Renderer::new(device, queue, format);
+        if let Some((levels, wraps)) = image {
+            renderer.set_image(device, queue, levels, wraps);
+        }
         renderer.set_strip(device, queue, positions);
         renderer.draw(device, queue, &texture.create_view(&Default::default()), (width, height), uniform);
         let row_bytes = (width * 4).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
@@ -368,11 +547,12 @@ impl Readback {
 pub fn render_offscreen(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
-    positions: &[[f32; 3]],
+    positions: &[Vertex],
+    image: Option<(&[Level], bool)>,
     size: (u32, u32),
     uniform: &FrameUniform,
 ) -> Result<Vec<u8>, String> {
-    let readback = Readback::draw(device, queue, positions, size, uniform);
+    let readback = Readback::draw(device, queue, positions, image, size, uniform);
     readback.map(|_| {});
     device
         .poll(wgpu::PollType::Wait { submission_index: None, timeout: None })

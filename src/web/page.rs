@@ -16,7 +16,7 @@ use web_sys::{HtmlCanvasElement, HtmlElement, Request, RequestInit, Response};
 
 use relief_core::refine::progressive::HostedRequest;
 
-use crate::draw::{FrameUniform, Readback, Renderer};
+use crate::draw::{near_for, FrameUniform, Readback, Renderer};
 use crate::scene::{Orbit, Scene, FIRST_RANGE_BYTES};
 
 /// What `window.relief.status()` returns (as a plain object).
@@ -74,6 +74,9 @@ struct Params {
     /// see ARCHITECTURE.md, "The web viewer"), or WebGPU where the browser has an adapter
     /// (`auto`).
     gpu: GpuChoice,
+    /// An image to drape (its address, relative to the page) and how much the hillshade lights it.
+    imagery: Option<String>,
+    imagery_shade: f32,
     /// Once the first complete frame is drawn, draw it again into a texture and read it back
     /// (`window.relief.pixels()`): what tests compare where a canvas cannot be screenshot.
     readback: bool,
@@ -100,6 +103,8 @@ fn parse_params(fragment: &str) -> Result<Params, String> {
         first_bytes: FIRST_RANGE_BYTES,
         gpu: GpuChoice::WebGl2,
         readback: false,
+        imagery: None,
+        imagery_shade: 0.7,
     };
     let number =
         |key: &str, v: &str| v.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or(format!("#{key}={v}: not a number"));
@@ -136,7 +141,19 @@ fn parse_params(fragment: &str) -> Result<Params, String> {
                 }
             }
             "readback" => p.readback = v != "0",
-            _ => return Err(format!("#{k}: unknown option (tau, z, eye, look, spin, hud, first, gpu, readback)")),
+            "imagery" => p.imagery = Some(v.to_string()),
+            "shade" => {
+                let x = number(k, v)?;
+                if !(0.0..=1.0).contains(&x) {
+                    return Err(format!("#shade={v}: how much the hillshade lights the image, 0 to 1"));
+                }
+                p.imagery_shade = x as f32;
+            }
+            _ => {
+                return Err(format!(
+                    "#{k}: unknown option (tau, z, eye, look, spin, hud, first, gpu, readback, imagery, shade)"
+                ))
+            }
         }
     }
     if !(1.0..=100.0).contains(&p.z_exaggeration) {
@@ -267,6 +284,74 @@ struct App {
     failed: bool,
     readback: bool,
     pixels: Rc<RefCell<Option<String>>>,
+    drape: Option<Drape>,
+}
+
+/// The draped image: its mip levels, where it lies, how it is lit.
+struct Drape {
+    levels: Vec<crate::draw::Level>,
+    uv: [f32; 4],
+    wraps: bool,
+    shade: f32,
+}
+
+/// Fetches the image at `url` whole (decoded by the browser) and the world file beside it, if
+/// any, and places it on `header`'s terrain.
+async fn fetch_drape(url: &str, shade: f32, header: &relief_core::format::terrain::Header) -> Result<Drape, String> {
+    let answer = JsFuture::from(window().fetch_with_str(url)).await.map_err(|e| {
+        format!("{url}: could not be fetched ({}), or the server refuses cross-origin reads", js_message(&e))
+    })?;
+    let response: Response =
+        answer.dyn_into().map_err(|_| format!("{url}: fetch answered something not a Response"))?;
+    if !response.ok() {
+        return Err(format!("{url}: the server answered {} {}", response.status(), response.status_text()));
+    }
+    let blob: web_sys::Blob = JsFuture::from(response.blob().map_err(|e| format!("{url}: {}", js_message(&e)))?)
+        .await
+        .map_err(|e| format!("{url}: the body was cut off ({})", js_message(&e)))?
+        .unchecked_into();
+    let options = web_sys::ImageBitmapOptions::new();
+    options.set_color_space_conversion(web_sys::ColorSpaceConversion::None);
+    options.set_premultiply_alpha(web_sys::PremultiplyAlpha::None);
+    let not_image = |_| format!("{url}: not an image this browser decodes (PNG or JPEG)");
+    let promise =
+        window().create_image_bitmap_with_blob_and_image_bitmap_options(&blob, &options).map_err(not_image)?;
+    let bitmap: web_sys::ImageBitmap = JsFuture::from(promise).await.map_err(not_image)?.unchecked_into();
+    let (w, h) = (bitmap.width(), bitmap.height());
+    let document = window().document().ok_or("no document")?;
+    let canvas: HtmlCanvasElement = document.create_element("canvas").map_err(|e| js_message(&e))?.unchecked_into();
+    canvas.set_width(w);
+    canvas.set_height(h);
+    let context: web_sys::CanvasRenderingContext2d = canvas
+        .get_context("2d")
+        .map_err(|e| js_message(&e))?
+        .ok_or("no 2D canvas to decode the image in")?
+        .unchecked_into();
+    context.draw_image_with_image_bitmap(&bitmap, 0.0, 0.0).map_err(|e| js_message(&e))?;
+    let rgba = context.get_image_data(0.0, 0.0, w as f64, h as f64).map_err(|e| js_message(&e))?.data().0;
+    // The world file beside it, by the usual names; none: the image spans the DEM.
+    let mut placement = None;
+    if let Some((stem, ext)) = url.rsplit_once('.') {
+        for wext in relief_core::georef::drape::world_file_extensions(&ext.to_ascii_lowercase()) {
+            let wf = format!("{stem}.{wext}");
+            let Ok(answer) = JsFuture::from(window().fetch_with_str(&wf)).await else { continue };
+            let Ok(response) = answer.dyn_into::<Response>() else { continue };
+            if !response.ok() {
+                continue;
+            }
+            let text = match response.text() {
+                Ok(p) => JsFuture::from(p).await.ok().and_then(|t| t.as_string()).unwrap_or_default(),
+                Err(_) => String::new(),
+            };
+            placement =
+                Some(relief_core::georef::drape::parse_world_file(&text).map_err(|what| format!("{wf}: {what}"))?);
+            break;
+        }
+    }
+    let (uv, wraps) = relief_core::georef::drape::uv_of_grid(w, h, placement, header).ok_or_else(|| {
+        format!("{url}: its world file places it in a CRS, and the terrain has none (serve the image without it to stretch it over the DEM)")
+    })?;
+    Ok(Drape { levels: crate::draw::mip_levels(w, h, rgba), uv, wraps, shade })
 }
 
 fn median(v: &[f64]) -> f64 {
@@ -336,7 +421,7 @@ impl App {
         let progress = self.scene.refine(&camera).map_err(|e| e.to_string())?;
         self.refine_ms.push(now_ms() - r0);
         let look = self.scene.look();
-        let positions = self.scene.positions(&look);
+        let positions = self.scene.positions(&look, self.drape.as_ref().map(|d| d.uv));
         self.renderer.set_strip(&self.device, &self.queue, &positions);
         let frame = match self.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(f) | wgpu::CurrentSurfaceTexture::Suboptimal(f) => f,
@@ -351,7 +436,16 @@ impl App {
         let view = frame
             .texture
             .create_view(&wgpu::TextureViewDescriptor { format: Some(self.config.format), ..Default::default() });
-        let uniform = FrameUniform::new(&camera, &look, self.renderer.srgb_target());
+        let with_imagery = |u: FrameUniform| match &self.drape {
+            Some(d) => u.with_imagery(d.shade, d.wraps),
+            None => u,
+        };
+        let uniform = with_imagery(FrameUniform::new(
+            &camera,
+            &look,
+            near_for(self.orbit.distance_m),
+            self.renderer.srgb_target(),
+        ));
         self.renderer.draw(&self.device, &self.queue, &view, (w, h), &uniform);
         self.queue.present(frame);
         let end = now_ms();
@@ -382,8 +476,9 @@ impl App {
                         &self.device,
                         &self.queue,
                         &positions,
+                        self.drape.as_ref().map(|d| (&d.levels[..], d.wraps)),
                         (w, h),
-                        &FrameUniform::new(&camera, &look, true),
+                        &with_imagery(FrameUniform::new(&camera, &look, near_for(self.orbit.distance_m), true)),
                     ),
                     self.status.clone(),
                     self.pixels.clone(),
@@ -562,6 +657,14 @@ async fn run(status: Rc<RefCell<Status>>, pixels: Rc<RefCell<Option<String>>>) -
     let mut scene = Scene::open(&url, len, &first).map_err(|e| open_error(&url, e))?;
     scene.options.tolerance_px = params.tolerance_px;
     scene.options.z_exaggeration = params.z_exaggeration;
+    let drape = match &params.imagery {
+        Some(i) => {
+            let image_url =
+                web_sys::Url::new_with_base(i, &href).map_err(|_| format!("#imagery={i}: not an address"))?.href();
+            Some(fetch_drape(&image_url, params.imagery_shade, scene.terrain().header()).await?)
+        }
+        None => None,
+    };
     let mut orbit = Orbit::overview(scene.terrain(), params.z_exaggeration);
     if let (Some(eye), Some(look)) = (params.eye, params.look) {
         // An explicit view (local metres, heights unexaggerated).
@@ -619,7 +722,10 @@ async fn run(status: Rc<RefCell<Status>>, pixels: Rc<RefCell<Option<String>>>) -
         config.format = *f;
     }
     surface.configure(&device, &config);
-    let renderer = Renderer::new(&device, config.format);
+    let mut renderer = Renderer::new(&device, &queue, config.format);
+    if let Some(d) = &drape {
+        renderer.set_image(&device, &queue, &d.levels, d.wraps);
+    }
     // A GPU error (wgpu's default is to panic) is the page's one-line error. The handler must
     // be Send, so it finds the status through the page's one thread's local.
     GPU_STATUS.with(|g| *g.borrow_mut() = Some(status.clone()));
@@ -657,6 +763,7 @@ async fn run(status: Rc<RefCell<Status>>, pixels: Rc<RefCell<Option<String>>>) -
         pinch: None,
         failed: false,
         readback: params.readback,
+        drape,
         pixels: pixels.clone(),
     }));
     controls(&app, &canvas)?;

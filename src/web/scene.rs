@@ -17,7 +17,7 @@ use relief_core::refine::progressive::{HostedRequest, Progressive, ProgressiveFr
 use relief_core::refine::{RefineOptions, Refiner, Strip};
 use relief_core::Result;
 
-use crate::draw::Look;
+use crate::draw::{Look, Vertex};
 
 /// Bytes of the opening request: the header and the coarse levels (what the native remote
 /// reader asks first, too).
@@ -98,10 +98,9 @@ impl Scene {
         look_of(self.terrain.header(), self.options.z_exaggeration)
     }
 
-    /// The last strip's vertices in scene metres relative to `look.origin_in_scene` (see
-    /// [`positions`]).
-    pub fn positions(&self, look: &Look) -> Vec<[f32; 3]> {
-        positions(self.terrain.header(), &self.strip, look, self.options.z_exaggeration)
+    /// The last strip's vertices (see [`positions`]).
+    pub fn positions(&self, look: &Look, uv: Option<[f32; 4]>) -> Vec<Vertex> {
+        positions(self.terrain.header(), &self.strip, look, self.options.z_exaggeration, uv)
     }
 }
 
@@ -119,8 +118,10 @@ pub fn look_of(h: &Header, z_exaggeration: f64) -> Look {
 /// A strip's vertices (with heights, `RefineOptions::heights`) in scene metres relative to
 /// `look.origin_in_scene`, heights `z_exaggeration` times as high. Posts of the padding outside
 /// the DEM's own window are drawn on its edge (their triangles vanish); a vertex without a
-/// height yet stands at the terrain's mid height.
-pub fn positions(h: &Header, strip: &Strip, look: &Look, z_exaggeration: f64) -> Vec<[f32; 3]> {
+/// height yet stands at the terrain's mid height. With `uv` (a draped image's `[a0, a1, b0, b1]`,
+/// `relief_core::georef::drape::uv_of_grid`) each vertex carries `u = a0 + a1·x`, `v = b0 + b1·y`.
+pub fn positions(h: &Header, strip: &Strip, look: &Look, z_exaggeration: f64, uv: Option<[f32; 4]>) -> Vec<Vertex> {
+    let [a0, a1, b0, b1] = uv.unwrap_or_default();
     let [x0, y0, x1, y1] = h.valid_window;
     let [sx, sy] = h.spacing_m;
     let mid = 0.5 * (h.z_min + h.z_max);
@@ -130,10 +131,10 @@ pub fn positions(h: &Header, strip: &Strip, look: &Look, z_exaggeration: f64) ->
         .iter()
         .enumerate()
         .map(|(i, v)| {
-            let x = v.x.clamp(x0, x1.saturating_sub(1).max(x0)) as f64 * sx - o.x;
-            let y = v.y.clamp(y0, y1.saturating_sub(1).max(y0)) as f64 * sy - o.y;
+            let (px, py) = (v.x.clamp(x0, x1.saturating_sub(1).max(x0)), v.y.clamp(y0, y1.saturating_sub(1).max(y0)));
+            let (x, y) = (px as f64 * sx - o.x, py as f64 * sy - o.y);
             let z = strip.morph.get(i).map_or(mid, |m| m.z_m as f64) * z_exaggeration - o.z;
-            [x as f32, y as f32, z as f32]
+            Vertex { in_scene: [x as f32, y as f32, z as f32], uv: [a0 + a1 * px as f32, b0 + b1 * py as f32] }
         })
         .collect()
 }

@@ -17,7 +17,7 @@ use relief_core::layout::LayoutKind;
 use relief_core::pager::serve::{Faults, ServeOptions, Server};
 use relief_core::preprocess::convert::{convert, ConvertOptions};
 use relief_core::refine::{RefineOptions, Refiner, Strip};
-use relief_web::draw::{render_offscreen, FrameUniform};
+use relief_web::draw::{mip_levels, near_for, render_offscreen, FrameUniform};
 use relief_web::scene::{look_of, positions, Orbit};
 
 fn checkout() -> PathBuf {
@@ -100,21 +100,42 @@ const TOLERANCE_PX: f64 = 2.0;
 
 /// The native reference: the local file refined for the page's camera and drawn offscreen.
 fn native_render(local: &Path) -> (Vec<u8>, u64) {
-    let terrain = Arc::new(TerrainFile::open(local).unwrap());
-    let orbit = Orbit::looking(DVec3::from(EYE), DVec3::from(LOOK), 1.0);
+    let terrain = TerrainFile::open(local).unwrap();
+    native_render_of(&terrain, Orbit::looking(DVec3::from(EYE), DVec3::from(LOOK), 1.0), 1.0, None)
+}
+
+/// [`native_render`] for any orbit and exaggeration, with an image draped (its file, and how
+/// much the hillshade lights it) as the page drapes it.
+fn native_render_of(terrain: &TerrainFile, orbit: Orbit, z: f64, image: Option<(&Path, f32)>) -> (Vec<u8>, u64) {
     let camera = orbit.camera(SIZE.0, SIZE.1).unwrap();
-    let options = RefineOptions { tolerance_px: TOLERANCE_PX, heights: true, ..Default::default() };
+    let options = RefineOptions { tolerance_px: TOLERANCE_PX, heights: true, z_exaggeration: z, ..Default::default() };
     let mut strip = Strip::new();
-    Refiner::new(1).unwrap().refine_file(&terrain, &camera, &options, &mut strip).unwrap();
-    relief_core::heightcache::exact_heights(&terrain, &strip.vertices, &mut strip.morph).unwrap();
-    let look = look_of(terrain.header(), 1.0);
-    let positions = positions(terrain.header(), &strip, &look, 1.0);
+    Refiner::new(1).unwrap().refine_file(terrain, &camera, &options, &mut strip).unwrap();
+    relief_core::heightcache::exact_heights(terrain, &strip.vertices, &mut strip.morph).unwrap();
+    let look = look_of(terrain.header(), z);
+    let drape = image.map(|(path, shade)| {
+        let rgba = image::open(path).unwrap().to_rgba8();
+        let (w, h) = rgba.dimensions();
+        let ext = path.extension().unwrap().to_str().unwrap();
+        let wf = relief_core::georef::drape::world_file_extensions(ext)
+            .iter()
+            .map(|e| path.with_extension(e))
+            .find(|p| p.exists())
+            .map(|p| relief_core::georef::drape::parse_world_file(&std::fs::read_to_string(p).unwrap()).unwrap());
+        let (uv, wraps) = relief_core::georef::drape::uv_of_grid(w, h, wf, terrain.header()).unwrap();
+        (mip_levels(w, h, rgba.into_raw()), uv, wraps, shade)
+    });
+    let positions = positions(terrain.header(), &strip, &look, z, drape.as_ref().map(|d| d.1));
     let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
     let adapter = pollster::block_on(instance.request_adapter(&Default::default()))
         .expect("a Vulkan adapter (lavapipe: apt-get install mesa-vulkan-drivers)");
     let (device, queue) = pollster::block_on(adapter.request_device(&Default::default())).unwrap();
-    let uniform = FrameUniform::new(&camera, &look, true);
-    let rgba = render_offscreen(&device, &queue, &positions, SIZE, &uniform).unwrap();
+    let mut uniform = FrameUniform::new(&camera, &look, near_for(orbit.distance_m), true);
+    if let Some(d) = &drape {
+        uniform = uniform.with_imagery(d.3, d.2);
+    }
+    let image = drape.as_ref().map(|d| (&d.0[..], d.2));
+    let rgba = render_offscreen(&device, &queue, &positions, image, SIZE, &uniform).unwrap();
     (rgba, strip.vertices.len().saturating_sub(2) as u64)
 }
 
@@ -249,6 +270,37 @@ fn the_page_reads_back_what_the_native_renderer_draws() {
     compare_with_native(&pixels, &native, "readback");
 }
 
+/// Imagery: NASA's Visible Earth image (data/imagery, placed by its world file) draped on the
+/// real ETOPO world DEM at 40× exaggeration, in the page as natively (the image decoded by the
+/// browser there, by the `image` crate here; mip levels by the same code), within the same
+/// tolerance.
+#[test]
+fn the_page_drapes_imagery_as_the_native_renderer_does() {
+    let dir = tempfile::tempdir().unwrap();
+    let world = dir.path().join("world.relief");
+    let dem = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/dem/etopo20_world.tif");
+    convert(&dem, &world, &ConvertOptions::new(LayoutKind::Interleaved)).unwrap();
+    let imagery = checkout().join("data/imagery");
+    let mut files = viewer_files();
+    files.push(("world.relief".into(), world.clone()));
+    files.push(("earth_2048.jpg".into(), imagery.join("earth_2048.jpg")));
+    files.push(("earth_2048.jgw".into(), imagery.join("earth_2048.jgw")));
+    let server = serve(files, ServeOptions::default());
+    let url = format!("{}#world.relief&z=40&tau={TOLERANCE_PX}&hud=0&imagery=earth_2048.jpg&shade=0.7", server.url(""));
+    let shot = dir.path().join("imagery.png");
+    let run = browse(&url, dir.path(), SIZE, Some(&shot), None);
+    assert_eq!(run.code, 0, "{url}\n{}\n{}", run.stdout, run.stderr);
+    let terrain = TerrainFile::open(&world).unwrap();
+    let (native, native_triangles) =
+        native_render_of(&terrain, Orbit::overview(&terrain, 40.0), 40.0, Some((&imagery.join("earth_2048.jpg"), 0.7)));
+    assert_eq!(run.status["triangles"].as_u64(), Some(native_triangles), "{}", run.status);
+    let (_, _, page) = decode_png(&shot);
+    compare_with_native(&page, &native, "imagery");
+    // The image is drawn: blue oceans somewhere, not the height ramp's greens alone.
+    let blue = native.chunks(4).filter(|p| p[2] > p[0].saturating_add(40) && p[2] > p[1]).count();
+    assert!(blue > (SIZE.0 * SIZE.1 / 20) as usize, "oceans from the image ({blue} blue pixels)");
+}
+
 /// Every kind of bad input is a one-line message in the page, never a blank canvas.
 #[test]
 fn bad_input_is_a_message_in_the_page() {
@@ -295,6 +347,8 @@ fn bad_input_is_a_message_in_the_page() {
         (format!("{base}#http://127.0.0.1:{port}/zurich.relief"), "refuses cross-origin reads"),
         (format!("{base}#zurich.relief&tau=fast"), "#tau=fast: not a number"),
         (base.clone(), "No terrain named"),
+        (format!("{base}#zurich.relief&imagery=missing.jpg"), "missing.jpg: the server answered 404"),
+        (format!("{base}#zurich.relief&imagery=relief_web.js"), "not an image this browser decodes"),
     ];
     let mut failures = Vec::new();
     for (url, want) in &cases {
@@ -309,4 +363,36 @@ fn bad_input_is_a_message_in_the_page() {
     let _ = python.kill();
     let _ = python.wait();
     assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+/// The shader's colour is the CPU reference's (`draw::shade`): a flat square seen from above,
+/// with and without an image (one white texel stretched over it), at its centre pixel.
+#[test]
+fn the_shader_colours_as_the_cpu_reference() {
+    use relief_core::camera::Camera;
+    use relief_web::draw::{shade, srgb_encode, Look, Vertex};
+    let square: Vec<Vertex> = [(-1000.0, -1000.0), (1000.0, -1000.0), (-1000.0, 1000.0), (1000.0, 1000.0)]
+        .iter()
+        .map(|&(x, y)| Vertex { in_scene: [x, y, 0.0], uv: [0.5, 0.5] })
+        .collect();
+    let look = Look { origin_in_scene: DVec3::ZERO, z_lo: -100.0, z_hi: 300.0, fog_distance_m: 4000.0 };
+    let camera = Camera::new(DVec3::new(0.0, -1.0, 1000.0), DVec3::ZERO, DVec3::Z, 60.0, 64, 64).unwrap();
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+    let adapter = pollster::block_on(instance.request_adapter(&Default::default())).expect("a Vulkan adapter");
+    let (device, queue) = pollster::block_on(adapter.request_device(&Default::default())).unwrap();
+    let white = [(1, 1, vec![255u8; 4])];
+    for imagery in [false, true] {
+        let mut u = FrameUniform::new(&camera, &look, 1.0, true);
+        if imagery {
+            u = u.with_imagery(0.5, false);
+        }
+        let image = imagery.then_some((&white[..], false));
+        let rgba = render_offscreen(&device, &queue, &square, image, (64, 64), &u).unwrap();
+        let centre = &rgba[(32 * 64 + 32) * 4..][..3];
+        let want = shade(&u, [0.0, 0.0, 1.0], 0.0, 1000.0, [1.0; 3]).map(|c| (srgb_encode(c) * 255.0).round() as u8);
+        assert!(
+            centre.iter().zip(want).all(|(&g, w)| g.abs_diff(w) <= 1),
+            "imagery {imagery}: GPU {centre:?}, CPU reference {want:?}"
+        );
+    }
 }

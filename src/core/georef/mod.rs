@@ -43,6 +43,7 @@ impl CrsKind {
     }
 }
 
+pub mod drape;
 mod epsg_units;
 
 /// EPSG unit-of-measure codes (GeoTIFF's unit keys use these).
