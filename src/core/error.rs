@@ -208,6 +208,9 @@ pub enum Problem {
     Checksum { which: &'static str, stored: u64, computed: u64 },
     /// A field, a table entry or a block that is inconsistent.
     Corrupt(String),
+    /// A record, block or table entry that is inconsistent, at byte `offset` of the file (where
+    /// a tool such as `xxd -s` finds it).
+    CorruptAt { offset: u64, what: String },
 }
 
 impl Problem {
@@ -231,6 +234,7 @@ impl Problem {
                 format!("{kind}: {which} checksum mismatch (stored {stored:016x}, computed {computed:016x})")
             }
             Problem::Corrupt(what) => format!("corrupt {kind}: {what}"),
+            Problem::CorruptAt { offset, what } => format!("corrupt {kind} at byte {offset}: {what}"),
         }
     }
 }

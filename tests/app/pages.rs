@@ -367,7 +367,7 @@ fn pages_commands_refuse_bad_input_with_one_line() {
             p.as_os_str(),
             "--quiet".as_ref(),
         ],
-        "page 0",
+        &format!("corrupt page file at byte {first_page}: page 0"),
     );
 }
 

@@ -603,7 +603,9 @@ fn corrupt_vdt_files_are_one_line_errors() {
     let at = 256 + leaves * 48 + 20;
     bad[at..at + 4].copy_from_slice(&(leaves as u32).to_le_bytes());
     let msg = open_err(&bad);
-    assert!(msg.starts_with(&format!("{p}: corrupt VDT file: node {leaves}: ")), "{msg}");
+    // Named with the byte offset of the node's record (where `xxd -s` finds it).
+    let node_at = 256 + leaves * 48;
+    assert!(msg.starts_with(&format!("{p}: corrupt VDT file at byte {node_at}: node {leaves}: ")), "{msg}");
     let missing = dir.path().join("missing.vdt");
     assert_eq!(
         VdtFile::open(&missing).err().expect("an error").to_string(),

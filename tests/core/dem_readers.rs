@@ -954,3 +954,21 @@ fn mutated_fixtures_never_panic() {
     eprintln!("{runs} runs, {errors} errors");
     assert!(failures.is_empty(), "{} failures:\n{}", failures.len(), failures.join("\n"));
 }
+
+/// Options out of range are typed errors with the limit, for callers that act on them.
+#[test]
+fn a_spacing_out_of_range_is_a_typed_error_with_its_limit() {
+    use relief_core::preprocess::convert::{convert, ConvertOptions};
+    use relief_core::Error;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("z.relief");
+    let mut options = ConvertOptions::new(relief_core::layout::LayoutKind::Interleaved);
+    options.spacing_m = Some([25.0, -1.0]);
+    let e = convert(&common::dem("zurich_25m_i16.tif"), &out, &options).unwrap_err();
+    assert!(
+        matches!(&e, Error::OutOfRange { what: "post spacing", allowed, got } if allowed == "positive metres" && got == "25,-1"),
+        "{e:?}"
+    );
+    assert_eq!(e.to_string(), "post spacing must be positive metres, got 25,-1");
+    assert!(!out.exists(), "no output");
+}

@@ -31,7 +31,7 @@ use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 
 use super::vdt::NONE;
-use super::{corrupt, read_header, section_end, Bounds, FileKind, Format, HeaderBytes, Problem};
+use super::{corrupt, corrupt_at, read_header, section_end, Bounds, FileKind, Format, HeaderBytes, Problem};
 use crate::error::Result;
 use crate::pager::{Access, Block, Extent, ExtentTable, Pager};
 
@@ -383,6 +383,7 @@ impl MetaNodeFile {
 
 /// Parses block `m`'s bytes, turning a malformed block into an error naming the file.
 pub fn parse_block<'b>(file: &MetaNodeFile, m: u32, bytes: &'b [u8]) -> Result<BlockView<'b>> {
+    let offset = file.pager().extent(m).map_or(0, |e| e.offset);
     BlockView::parse(bytes, file.header().metanodes as u32)
-        .map_err(|problem| corrupt(file.path(), FileKind::MetaNode, format!("meta-node {m}: {problem}")))
+        .map_err(|problem| corrupt_at(file.path(), FileKind::MetaNode, offset, format!("meta-node {m}: {problem}")))
 }

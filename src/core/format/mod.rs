@@ -205,6 +205,11 @@ pub fn corrupt(path: &Path, kind: FileKind, what: impl Into<String>) -> Error {
     file_error(path, kind, Problem::Corrupt(what.into()))
 }
 
+/// A [`Problem::CorruptAt`] error: what is wrong at byte `offset` of the file.
+pub fn corrupt_at(path: &Path, kind: FileKind, offset: u64, what: impl Into<String>) -> Error {
+    file_error(path, kind, Problem::CorruptAt { offset, what: what.into() })
+}
+
 /// Decodes header bytes as format `F` (the container's checks, then `F`'s).
 pub fn decode_header<F: Format>(path: &Path, bytes: &[u8], file_len: u64) -> Result<F> {
     let err = |p| file_error(path, F::KIND, p);

@@ -39,7 +39,7 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 
-use super::{corrupt, read_header, section_end, Bounds, FileKind, Format, HeaderBytes, Problem};
+use super::{corrupt, corrupt_at, read_header, section_end, Bounds, FileKind, Format, HeaderBytes, Problem};
 use crate::error::Result;
 use crate::pager::{Access, Block, BlockBuf, FixedBlocks, Pager};
 
@@ -474,7 +474,8 @@ impl PageFile {
 
     /// Decodes a page's bytes; a damaged page is an error naming the file and the page.
     pub fn decode<'a>(&self, p: u32, bytes: &'a [u8]) -> Result<PageView<'a>> {
-        let bad = |what: String| corrupt(&self.path, FileKind::Pages, format!("page {p}: {what}"));
+        let offset = self.pager.extent(p).map_or(0, |e| e.offset);
+        let bad = |what: String| corrupt_at(&self.path, FileKind::Pages, offset, format!("page {p}: {what}"));
         let view = PageView::parse(bytes).map_err(bad)?;
         let (tris, verts) = self.counts.get(p as usize).copied().unwrap_or_default();
         if (view.triangles() as u32, view.vertices() as u32) != (tris, verts) {

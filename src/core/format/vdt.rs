@@ -35,7 +35,7 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use serde::Serialize;
 
-use super::{corrupt, read_header, Bounds, FileKind, Format, HeaderBytes, Problem};
+use super::{corrupt, corrupt_at, read_header, Bounds, FileKind, Format, HeaderBytes, Problem};
 use crate::error::{Error, Result};
 use crate::pager::source::{Source, SourceKind};
 
@@ -217,6 +217,10 @@ impl VdtFile {
     /// header (one pass over the file).
     fn check_records(&self) -> Result<()> {
         let bad = |what: String| corrupt(&self.path, FileKind::Vdt, what);
+        // A node's or a triangle's record, by its byte offset.
+        let node_at = |id: u32, what: String| {
+            corrupt_at(&self.path, FileKind::Vdt, (HEADER_BYTES + id as usize * NODE_BYTES) as u64, what)
+        };
         let leaves = self.header.leaves as u32;
         let nodes = self.nodes();
         let dying = self.header.triangles - self.header.base_triangles;
@@ -225,27 +229,33 @@ impl VdtFile {
             let id = id as u32;
             let parent_ok = n.parent == NONE || (n.parent > id && (n.parent as usize) < nodes.len());
             if !parent_ok {
-                return Err(bad(format!("node {id}: parent {} is not a later node", n.parent)));
+                return Err(node_at(id, format!("node {id}: parent {} is not a later node", n.parent)));
             }
             if id < leaves {
                 if n.children != [NONE, NONE] || n.leaves != 1 || n.tri_count != 0 {
-                    return Err(bad(format!("leaf {id}: has children, triangles or a leaf count other than 1")));
+                    return Err(node_at(
+                        id,
+                        format!("leaf {id}: has children, triangles or a leaf count other than 1"),
+                    ));
                 }
                 continue;
             }
             let [c0, c1] = n.children;
             if c0 >= id || c1 >= id || c0 == c1 {
-                return Err(bad(format!("node {id}: children {c0}, {c1} are not two earlier nodes")));
+                return Err(node_at(id, format!("node {id}: children {c0}, {c1} are not two earlier nodes")));
             }
             let sum = nodes[c0 as usize].leaves as u64 + nodes[c1 as usize].leaves as u64;
             if n.leaves as u64 != sum {
-                return Err(bad(format!("node {id}: {} leaves, its children have {sum}", n.leaves)));
+                return Err(node_at(id, format!("node {id}: {} leaves, its children have {sum}", n.leaves)));
             }
             if n.tri_start as u64 != next_tri || next_tri + n.tri_count as u64 > dying {
-                return Err(bad(format!(
-                    "node {id}: triangles {}..+{} do not follow the previous node's in the section",
-                    n.tri_start, n.tri_count
-                )));
+                return Err(node_at(
+                    id,
+                    format!(
+                        "node {id}: triangles {}..+{} do not follow the previous node's in the section",
+                        n.tri_start, n.tri_count
+                    ),
+                ));
             }
             next_tri += n.tri_count as u64;
         }
@@ -254,7 +264,13 @@ impl VdtFile {
         }
         if let Some((k, t)) = self.triangles().iter().enumerate().find(|(_, t)| t.corners.iter().any(|&c| c >= leaves))
         {
-            return Err(bad(format!("triangle {k}: corner out of range {:?} ({leaves} leaves)", t.corners)));
+            let at = HEADER_BYTES + self.header.nodes as usize * NODE_BYTES + k * TRIANGLE_BYTES;
+            return Err(corrupt_at(
+                &self.path,
+                FileKind::Vdt,
+                at as u64,
+                format!("triangle {k}: corner out of range {:?} ({leaves} leaves)", t.corners),
+            ));
         }
         Ok(())
     }

@@ -189,7 +189,11 @@ impl TerrainExport {
     /// metres (vertically) of its plane (see the module's note).
     pub fn within_error(terrain: &TerrainFile, max_error_m: f64, frame: ExportFrame) -> Result<TerrainExport> {
         if !(max_error_m.is_finite() && max_error_m >= 0.0) {
-            return Err(Error::InvalidArgument(format!("--max-error must be metres ≥ 0, got {max_error_m}")));
+            return Err(Error::OutOfRange {
+                what: "--max-error",
+                allowed: "metres ≥ 0".into(),
+                got: max_error_m.to_string(),
+            });
         }
         let tris = error_mesh(terrain, max_error_m)?;
         TerrainExport::of_triangles(terrain, &tris, frame)

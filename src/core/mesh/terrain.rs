@@ -21,7 +21,7 @@ fn posts(x0: u32, x1: u32, step: u32) -> Vec<u32> {
 /// from +z) triangles per cell. Vertices are row-major, x fastest.
 pub fn terrain_mesh(file: &TerrainFile, step: u32) -> Result<Mesh> {
     if step == 0 {
-        return Err(Error::InvalidArgument("the step must be at least 1 post".into()));
+        return Err(Error::OutOfRange { what: "the step", allowed: "at least 1 post".into(), got: step.to_string() });
     }
     let h = file.header();
     let [x0, y0, x1, y1] = h.valid_window;

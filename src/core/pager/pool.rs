@@ -157,7 +157,7 @@ pub struct PoolStats {
 /// use.
 pub fn holders_for(budget_bytes: u64, block_bytes: u64) -> Result<usize> {
     if block_bytes == 0 {
-        return Err(Error::InvalidArgument("block size must be at least one byte".into()));
+        return Err(Error::OutOfRange { what: "the block size", allowed: "at least one byte".into(), got: "0".into() });
     }
     let blocks = budget_bytes / block_bytes;
     if blocks < MIN_HOLDERS as u64 + 1 {

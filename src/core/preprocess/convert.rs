@@ -304,7 +304,11 @@ fn convert_source(
     }
     if let Some([sx, sy]) = opts.spacing_m {
         if !(sx.is_finite() && sy.is_finite() && sx > 0.0 && sy > 0.0) {
-            return Err(Error::InvalidArgument(format!("post spacing must be positive metres, got {sx},{sy}")));
+            return Err(Error::OutOfRange {
+                what: "post spacing",
+                allowed: "positive metres".into(),
+                got: format!("{sx},{sy}"),
+            });
         }
     }
 
