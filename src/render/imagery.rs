@@ -164,13 +164,14 @@ impl Imagery {
     /// Texture coordinates of grid posts: `u = a0 + a1·x`, `v = b0 + b1·y` (0..1 over the
     /// image, v down), and whether u wraps (a world image on a geographic terrain).
     pub fn uv_of_grid(&self, h: &Header) -> Result<([f32; 4], bool)> {
-        relief_core::georef::drape::uv_of_grid(self.width, self.height, self.placement, h).ok_or_else(|| {
-            Error::InvalidArgument(format!(
-                "{}: a world file places the image in a CRS, and the terrain has none; drop the world file to \
+        relief_core::georef::drape::uv_of_grid(self.width, self.height, self.placement, h.valid_window, h.georef)
+            .ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "{}: a world file places the image in a CRS, and the terrain has none; drop the world file to \
                  stretch the image over the DEM",
-                self.path.display()
-            ))
-        })
+                    self.path.display()
+                ))
+            })
     }
 
     /// The image and its mip levels (each half the size, box-filtered), the first no larger than

@@ -348,7 +348,7 @@ async fn fetch_drape(url: &str, shade: f32, header: &relief_core::format::terrai
             break;
         }
     }
-    let (uv, wraps) = relief_core::georef::drape::uv_of_grid(w, h, placement, header).ok_or_else(|| {
+    let (uv, wraps) = relief_core::georef::drape::uv_of_grid(w, h, placement, header.valid_window, header.georef).ok_or_else(|| {
         format!("{url}: its world file places it in a CRS, and the terrain has none (serve the image without it to stretch it over the DEM)")
     })?;
     Ok(Drape { levels: crate::draw::mip_levels(w, h, rgba), uv, wraps, shade })

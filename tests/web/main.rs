@@ -122,7 +122,9 @@ fn native_render_of(terrain: &TerrainFile, orbit: Orbit, z: f64, image: Option<(
             .map(|e| path.with_extension(e))
             .find(|p| p.exists())
             .map(|p| relief_core::georef::drape::parse_world_file(&std::fs::read_to_string(p).unwrap()).unwrap());
-        let (uv, wraps) = relief_core::georef::drape::uv_of_grid(w, h, wf, terrain.header()).unwrap();
+        let (uv, wraps) =
+            relief_core::georef::drape::uv_of_grid(w, h, wf, terrain.header().valid_window, terrain.header().georef)
+                .unwrap();
         (mip_levels(w, h, rgba.into_raw()), uv, wraps, shade)
     });
     let positions = positions(terrain.header(), &strip, &look, z, drape.as_ref().map(|d| d.1));

@@ -2,8 +2,7 @@
 //! the texture coordinates of grid posts it gives. Shared by the native renderer and the web
 //! viewer, which both sample an image at `u = a0 + a1·x`, `v = b0 + b1·y`.
 
-use crate::format::terrain::Header;
-use crate::georef::CrsKind;
+use crate::georef::{CrsKind, Georef};
 
 /// The world-file extensions GIS tools use beside an image with extension `ext` (lower case),
 /// most specific first: `.pgw`/`.jgw`, then `.pngw`/`.jpgw`, then `.wld`.
@@ -36,17 +35,24 @@ pub fn parse_world_file(text: &str) -> Result<[f64; 4], &'static str> {
 
 /// Texture coordinates of grid posts, `[a0, a1, b0, b1]` (0..1 over the image, v down), and
 /// whether u wraps (a world image on a geographic terrain), for a `width × height` image placed
-/// by `placement` (`None`: stretched over the DEM's posts). `None` when a placement needs a CRS
-/// the terrain has not.
-pub fn uv_of_grid(width: u32, height: u32, placement: Option<[f64; 4]>, h: &Header) -> Option<([f32; 4], bool)> {
+/// by `placement` (`None`: stretched over the DEM's posts, `valid_window` of the terrain's
+/// header) on a terrain placed by `georef`. `None` when a placement needs a CRS the terrain has
+/// not.
+pub fn uv_of_grid(
+    width: u32,
+    height: u32,
+    placement: Option<[f64; 4]>,
+    valid_window: [u32; 4],
+    georef: Option<Georef>,
+) -> Option<([f32; 4], bool)> {
     let (w, ht) = (width as f64, height as f64);
     let Some([x0, dx, y0, dy]) = placement else {
         // The image spans the DEM's posts (first to last post, pixel edges at the ends).
-        let [_, _, x1, y1] = h.valid_window;
+        let [_, _, x1, y1] = valid_window;
         let (sx, sy) = ((x1.max(2) - 1) as f64, (y1.max(2) - 1) as f64);
         return Some(([0.0, (1.0 / sx) as f32, 1.0, (-1.0 / sy) as f32], false));
     };
-    let g = h.georef?;
+    let g = georef?;
     let (left, top) = (x0 - 0.5 * dx, y0 + 0.5 * dy);
     let (span_x, span_y) = (w * dx, ht * dy);
     let uv = [

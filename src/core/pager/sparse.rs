@@ -207,10 +207,11 @@ impl Source for SparseFile {
     /// Pages left out read as zeros without I/O, so they are resident; a stored page is where
     /// its physical page is.
     fn resident_pages(&self, first: u64, end: u64) -> Result<Vec<bool>> {
-        let physical = self.inner.resident_pages(0, self.inner.len().div_ceil(PAGE_BYTES))?;
-        Ok((first..end)
-            .map(|p| self.map.physical(p).is_none_or(|q| physical.get(q as usize).copied().unwrap_or(false)))
-            .collect())
+        // Only the span of physical pages behind `first..end` is asked about, not the file.
+        let physical: Vec<Option<u64>> = (first..end).map(|p| self.map.physical(p)).collect();
+        let (lo, hi) = physical.iter().flatten().fold((u64::MAX, 0), |(lo, hi), &q| (lo.min(q), hi.max(q + 1)));
+        let here = if lo < hi { self.inner.resident_pages(lo, hi)? } else { Vec::new() };
+        Ok(physical.iter().map(|q| q.is_none_or(|q| here.get((q - lo) as usize).copied().unwrap_or(false))).collect())
     }
 
     fn stored_runs(&self, runs: &[(u64, u64)]) -> Vec<(u64, u64)> {
