@@ -70,9 +70,8 @@ struct Params {
     hud: bool,
     /// Bytes of the opening request (whole pages).
     first_bytes: u64,
-    /// Which graphics API: WebGL2 (the default, `webgl2`), WebGPU (`webgpu`, not yet tested:
-    /// see ARCHITECTURE.md, "The web viewer"), or WebGPU where the browser has an adapter
-    /// (`auto`).
+    /// Which graphics API: WebGPU where the browser has an adapter, else WebGL2 (`auto`, the
+    /// default), or one of them (`webgpu`, `webgl2`).
     gpu: GpuChoice,
     /// An image to drape (its address, relative to the page) and how much the hillshade lights it.
     imagery: Option<String>,
@@ -101,7 +100,7 @@ fn parse_params(fragment: &str) -> Result<Params, String> {
         spin_deg: 0.0,
         hud: true,
         first_bytes: FIRST_RANGE_BYTES,
-        gpu: GpuChoice::WebGl2,
+        gpu: GpuChoice::Auto,
         readback: false,
         imagery: None,
         imagery_shade: 0.7,
@@ -283,6 +282,8 @@ struct App {
     pinch: Option<f64>,
     failed: bool,
     readback: bool,
+    /// Nothing is drawn to the canvas (a WebGPU read-back: see `draw_frame`).
+    canvas_off: bool,
     pixels: Rc<RefCell<Option<String>>>,
     drape: Option<Drape>,
 }
@@ -423,31 +424,35 @@ impl App {
         let look = self.scene.look();
         let positions = self.scene.positions(&look, self.drape.as_ref().map(|d| d.uv));
         self.renderer.set_strip(&self.device, &self.queue, &positions);
-        let frame = match self.surface.get_current_texture() {
-            wgpu::CurrentSurfaceTexture::Success(f) | wgpu::CurrentSurfaceTexture::Suboptimal(f) => f,
-            other => {
-                // Lost or outdated (a resize under way): configure again and draw next frame.
-                self.surface.configure(&self.device, &self.config);
-                self.dirty = true;
-                drop(other);
-                return Ok(());
-            }
-        };
-        let view = frame
-            .texture
-            .create_view(&wgpu::TextureViewDescriptor { format: Some(self.config.format), ..Default::default() });
         let with_imagery = |u: FrameUniform| match &self.drape {
             Some(d) => u.with_imagery(d.shade, d.wraps),
             None => u,
         };
-        let uniform = with_imagery(FrameUniform::new(
-            &camera,
-            &look,
-            near_for(self.orbit.distance_m),
-            self.renderer.srgb_target(),
-        ));
-        self.renderer.draw(&self.device, &self.queue, &view, (w, h), &uniform);
-        self.queue.present(frame);
+        // Read back on WebGPU, the canvas is left alone: headless Chromium's SwiftShader refuses
+        // every mapAsync once a WebGPU canvas has shown a frame (ARCHITECTURE.md, "The web viewer").
+        if !self.canvas_off {
+            let frame = match self.surface.get_current_texture() {
+                wgpu::CurrentSurfaceTexture::Success(f) | wgpu::CurrentSurfaceTexture::Suboptimal(f) => f,
+                other => {
+                    // Lost or outdated (a resize under way): configure again and draw next frame.
+                    self.surface.configure(&self.device, &self.config);
+                    self.dirty = true;
+                    drop(other);
+                    return Ok(());
+                }
+            };
+            let view = frame
+                .texture
+                .create_view(&wgpu::TextureViewDescriptor { format: Some(self.config.format), ..Default::default() });
+            let uniform = with_imagery(FrameUniform::new(
+                &camera,
+                &look,
+                near_for(self.orbit.distance_m),
+                self.renderer.srgb_target(),
+            ));
+            self.renderer.draw(&self.device, &self.queue, &view, (w, h), &uniform);
+            self.queue.present(frame);
+        }
         let end = now_ms();
         self.frame_ms.push(end - t0);
         self.frame_times.push_back(end);
@@ -763,6 +768,7 @@ async fn run(status: Rc<RefCell<Status>>, pixels: Rc<RefCell<Option<String>>>) -
         pinch: None,
         failed: false,
         readback: params.readback,
+        canvas_off: params.readback && info.backend == wgpu::Backend::BrowserWebGpu,
         drape,
         pixels: pixels.clone(),
     }));

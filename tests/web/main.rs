@@ -234,8 +234,8 @@ fn compare_with_native(page: &[u8], native: &[u8], what: &str) {
 }
 
 /// The read-back path (`#readback=1`: the first complete frame drawn again into a texture and
-/// read back in the page, what a WebGPU canvas needs since a screenshot does not show it),
-/// here on WebGL2: its pixels are the native render's within the same tolerance.
+/// read back in the page, what the WebGPU test needs since a screenshot does not show it), here
+/// on WebGL2: its pixels are the native render's within the same tolerance.
 #[test]
 fn the_page_reads_back_what_the_native_renderer_draws() {
     let dir = tempfile::tempdir().unwrap();
@@ -246,7 +246,7 @@ fn the_page_reads_back_what_the_native_renderer_draws() {
     let [ex, ey, ez] = EYE;
     let [lx, ly, lz] = LOOK;
     let url = format!(
-        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&readback=1",
+        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&readback=1&gpu=webgl2",
         server.url("")
     );
     let run = browse_with(
@@ -288,7 +288,10 @@ fn the_page_drapes_imagery_as_the_native_renderer_does() {
     files.push(("earth_2048.jpg".into(), imagery.join("earth_2048.jpg")));
     files.push(("earth_2048.jgw".into(), imagery.join("earth_2048.jgw")));
     let server = serve(files, ServeOptions::default());
-    let url = format!("{}#world.relief&z=40&tau={TOLERANCE_PX}&hud=0&imagery=earth_2048.jpg&shade=0.7", server.url(""));
+    let url = format!(
+        "{}#world.relief&z=40&tau={TOLERANCE_PX}&hud=0&imagery=earth_2048.jpg&shade=0.7&gpu=webgl2",
+        server.url("")
+    );
     let shot = dir.path().join("imagery.png");
     let run = browse(&url, dir.path(), SIZE, Some(&shot), None);
     assert_eq!(run.code, 0, "{url}\n{}\n{}", run.stdout, run.stderr);
@@ -301,6 +304,47 @@ fn the_page_drapes_imagery_as_the_native_renderer_does() {
     // The image is drawn: blue oceans somewhere, not the height ramp's greens alone.
     let blue = native.chunks(4).filter(|p| p[2] > p[0].saturating_add(40) && p[2] > p[1]).count();
     assert!(blue > (SIZE.0 * SIZE.1 / 20) as usize, "oceans from the image ({blue} blue pixels)");
+}
+
+/// The WebGPU path (Chromium's `--enable-unsafe-webgpu`: WebGPU on SwiftShader, whose canvas a
+/// screenshot does not show, and which refuses mappings once a WebGPU canvas showed a frame):
+/// the page refines as ever, draws its first complete frame into a texture, reads it back, and
+/// the pixels are the native render's within the same tolerance.
+#[test]
+fn the_webgpu_path_reads_back_what_the_native_renderer_draws() {
+    let dir = tempfile::tempdir().unwrap();
+    let local = zurich(dir.path());
+    let mut files = viewer_files();
+    files.push(("zurich.relief".into(), local.clone()));
+    let server = serve(files, ServeOptions::default());
+    let [ex, ey, ez] = EYE;
+    let [lx, ly, lz] = LOOK;
+    let url = format!(
+        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&gpu=webgpu&readback=1",
+        server.url("")
+    );
+    let run = browse_with(
+        &url,
+        dir.path(),
+        SIZE,
+        None,
+        None,
+        &[
+            "--ready-expr",
+            "window.relief && window.relief.status().readback_done === true",
+            "--status-expr",
+            "JSON.stringify({status: window.relief.status(), pixels: window.relief.pixels()})",
+        ],
+        &[("RELIEF_CHROMIUM_FLAGS", "--enable-unsafe-webgpu")],
+    );
+    assert_eq!(run.code, 0, "{url}\n{}\n{}", run.stdout, run.stderr);
+    let s = &run.status["status"];
+    assert!(s["backend"].as_str().unwrap_or_default().starts_with("BrowserWebGpu"), "drawn with WebGPU: {s}");
+    use base64::Engine;
+    let pixels = base64::engine::general_purpose::STANDARD.decode(run.status["pixels"].as_str().unwrap()).unwrap();
+    let (native, native_triangles) = native_render(&local);
+    assert_eq!(s["triangles"].as_u64(), Some(native_triangles), "the page refined the native strip: {s}");
+    compare_with_native(&pixels, &native, "webgpu");
 }
 
 /// Every kind of bad input is a one-line message in the page, never a blank canvas.
