@@ -821,7 +821,8 @@ fn listen<E: JsCast + 'static>(
 }
 
 /// Mouse: drag to orbit, right-drag or shift-drag to pan, wheel to zoom. Touch: one finger
-/// orbits, two pinch. Keys: + and − change τ, [ and ] the exaggeration, arrows orbit, R resets.
+/// orbits, two pinch. Keys: W A S D fly along the ground, Q E down and up, arrows orbit, + and −
+/// change τ, [ and ] the exaggeration, R resets.
 fn controls(app: &Rc<RefCell<App>>, canvas: &HtmlCanvasElement) -> Result<(), String> {
     let target: &web_sys::EventTarget = canvas.as_ref();
     listen(target, "contextmenu", app, |_, e: web_sys::MouseEvent| e.prevent_default())?;
@@ -896,6 +897,12 @@ fn controls(app: &Rc<RefCell<App>>, canvas: &HtmlCanvasElement) -> Result<(), St
             "ArrowUp" => a.orbit.rotate(0.0, -10.0),
             "ArrowDown" => a.orbit.rotate(0.0, 10.0),
             "r" | "R" => a.orbit = Orbit::overview(a.scene.terrain(), a.scene.options.z_exaggeration),
+            "w" | "W" => a.orbit.fly(1.0, 0.0, 0.0),
+            "s" | "S" => a.orbit.fly(-1.0, 0.0, 0.0),
+            "a" | "A" => a.orbit.fly(0.0, -1.0, 0.0),
+            "d" | "D" => a.orbit.fly(0.0, 1.0, 0.0),
+            "q" | "Q" => a.orbit.fly(0.0, 0.0, -1.0),
+            "e" | "E" => a.orbit.fly(0.0, 0.0, 1.0),
             _ => return,
         }
         a.dirty = true;

@@ -217,6 +217,15 @@ impl Orbit {
         self.target_in_scene += (-dx * right + dy * ahead) * metres_per_px;
     }
 
+    /// Flies: the target, and the eye with it, moves `ahead` and `right` times a tenth of the
+    /// distance along the ground (the view's heading), and `up` times that in height.
+    pub fn fly(&mut self, ahead: f64, right: f64, up: f64) {
+        let step = 0.1 * self.distance_m;
+        let yaw = self.yaw_deg.to_radians();
+        let (forward, side) = (DVec3::new(yaw.sin(), yaw.cos(), 0.0), DVec3::new(yaw.cos(), -yaw.sin(), 0.0));
+        self.target_in_scene += (ahead * forward + right * side + up * DVec3::Z) * step;
+    }
+
     /// Nearer (`steps` > 0) or farther, by 10 % a step.
     pub fn zoom(&mut self, steps: f64) {
         self.distance_m = (self.distance_m * 0.9f64.powf(steps)).clamp(10.0, 1e8);
@@ -245,6 +254,11 @@ mod tests {
         assert_eq!(p.pitch_deg, 89.0, "pitch stays above the horizon and short of the zenith");
         p.zoom(1.0);
         assert!((p.distance_m - 900.0).abs() < 1e-9);
+        let mut f = o;
+        f.fly(1.0, 0.0, 0.0);
+        assert!((f.target_in_scene.x - 200.0).abs() < 1e-9, "flying ahead moves east at yaw 90°");
+        let (before, after) = (o.eye_in_scene(), f.eye_in_scene());
+        assert!(((after - before).length() - 100.0).abs() < 1e-9, "the eye moves with the target");
         let mut q = o;
         q.pan(0.0, 100.0, 1000);
         assert!((q.target_in_scene.x - 200.0).abs() < 1e-9, "dragging down moves the target ahead (east)");
