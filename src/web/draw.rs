@@ -125,25 +125,52 @@ pub struct Vertex {
     pub uv: [f32; 2],
 }
 
-/// One opaque white texel: the image bound when none is draped.
-fn white_texel(device: &wgpu::Device, queue: &wgpu::Queue) -> wgpu::Texture {
-    let texture = device.create_texture(&wgpu::TextureDescriptor {
-        label: Some("relief web no imagery"),
-        size: wgpu::Extent3d { width: 1, height: 1, depth_or_array_layers: 1 },
-        mip_level_count: 1,
+/// A 2D texture of `width × height` texels with `mips` levels.
+fn texture_2d(
+    device: &wgpu::Device,
+    label: &str,
+    (width, height): (u32, u32),
+    mips: u32,
+    format: wgpu::TextureFormat,
+    usage: wgpu::TextureUsages,
+) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+        mip_level_count: mips,
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
-        format: wgpu::TextureFormat::Rgba8UnormSrgb,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        format,
+        usage,
         view_formats: &[],
-    });
-    queue.write_texture(
-        texture.as_image_copy(),
-        &[255; 4],
-        wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4), rows_per_image: Some(1) },
-        wgpu::Extent3d { width: 1, height: 1, depth_or_array_layers: 1 },
-    );
+    })
+}
+
+/// An sRGB texture holding `levels` (finest first, at least one), for sampling.
+fn upload_levels(device: &wgpu::Device, queue: &wgpu::Queue, label: &str, levels: &[Level]) -> wgpu::Texture {
+    let (w, h) = levels.first().map_or((1, 1), |l| (l.0, l.1));
+    let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
+    let texture =
+        texture_2d(device, label, (w, h), levels.len().max(1) as u32, wgpu::TextureFormat::Rgba8UnormSrgb, usage);
+    for (k, (lw, lh, rgba)) in levels.iter().enumerate() {
+        queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texture,
+                mip_level: k as u32,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            rgba,
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(lw * 4), rows_per_image: Some(*lh) },
+            wgpu::Extent3d { width: *lw, height: *lh, depth_or_array_layers: 1 },
+        );
+    }
     texture
+}
+
+/// One opaque white texel: the image bound when none is draped.
+fn white_texel(device: &wgpu::Device, queue: &wgpu::Queue) -> wgpu::Texture {
+    upload_levels(device, queue, "relief web no imagery", &[(1, 1, vec![255; 4])])
 }
 
 /// A texture with its trilinear sampler (u repeating where it `wraps`).
@@ -334,37 +361,11 @@ impl Renderer {
 
     /// Drapes `levels` (RGBA8 sRGB, finest first, each half the last: see [`mip_levels`]); u
     /// repeats where it `wraps` around the world, else it is clamped.
-    pub fn set_image(
-        &mut self,
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        levels: &[(u32, u32, Vec<u8>)],
-        wraps: bool,
-    ) {
-        let Some(&(w, h, _)) = levels.first() else { return };
-        let texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("relief web imagery"),
-            size: wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
-            mip_level_count: levels.len() as u32,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: wgpu::TextureFormat::Rgba8UnormSrgb,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
-        for (k, (lw, lh, rgba)) in levels.iter().enumerate() {
-            queue.write_texture(
-                wgpu::TexelCopyTextureInfo {
-                    texture: &texture,
-                    mip_level: k as u32,
-                    origin: wgpu::Origin3d::ZERO,
-                    aspect: wgpu::TextureAspect::All,
-                },
-                rgba,
-                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(lw * 4), rows_per_image: Some(*lh) },
-                wgpu::Extent3d { width: *lw, height: *lh, depth_or_array_layers: 1 },
-            );
+    pub fn set_image(&mut self, device: &wgpu::Device, queue: &wgpu::Queue, levels: &[Level], wraps: bool) {
+        if levels.is_empty() {
+            return;
         }
+        let texture = upload_levels(device, queue, "relief web imagery", levels);
         self.image = image_texture(device, texture, wraps);
         self.bind_group = bind(device, &self.group_layout, &self.uniform, &self.image);
     }
@@ -406,16 +407,8 @@ impl Renderer {
         uniform: &FrameUniform,
     ) {
         if !matches!(&self.depth, Some((_, w, h)) if (*w, *h) == (width, height)) {
-            let depth = device.create_texture(&wgpu::TextureDescriptor {
-                label: Some("relief web depth"),
-                size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: DEPTH_FORMAT,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
-                view_formats: &[],
-            });
+            let usage = wgpu::TextureUsages::RENDER_ATTACHMENT;
+            let depth = texture_2d(device, "relief web depth", (width, height), 1, DEPTH_FORMAT, usage);
             self.depth = Some((depth.create_view(&Default::default()), width, height));
         }
         queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(uniform));
@@ -484,16 +477,8 @@ impl Readback {
         uniform: &FrameUniform,
     ) -> Readback {
         let format = wgpu::TextureFormat::Rgba8UnormSrgb;
-        let texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("relief web offscreen"),
-            size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
+        let usage = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
+        let texture = texture_2d(device, "relief web offscreen", (width, height), 1, format, usage);
         let mut renderer = Renderer::new(device, queue, format);
         if let Some((levels, wraps)) = image {
             renderer.set_image(device, queue, levels, wraps);

@@ -233,11 +233,10 @@ fn compare_with_native(page: &[u8], native: &[u8], what: &str) {
     }
 }
 
-/// The read-back path (`#readback=1`: the first complete frame drawn again into a texture and
-/// read back in the page, what the WebGPU test needs since a screenshot does not show it), here
-/// on WebGL2: its pixels are the native render's within the same tolerance.
-#[test]
-fn the_page_reads_back_what_the_native_renderer_draws() {
+/// Opens Zürich at the tests' view with `#readback=1&gpu=GPU` (Chromium's environment `env`),
+/// waits for the page's read-back of its first complete frame and compares those pixels with
+/// the native render; returns the page's status.
+fn read_back_and_compare(gpu: &str, env: &[(&str, &str)], what: &str) -> serde_json::Value {
     let dir = tempfile::tempdir().unwrap();
     let local = zurich(dir.path());
     let mut files = viewer_files();
@@ -246,7 +245,7 @@ fn the_page_reads_back_what_the_native_renderer_draws() {
     let [ex, ey, ez] = EYE;
     let [lx, ly, lz] = LOOK;
     let url = format!(
-        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&readback=1&gpu=webgl2",
+        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&readback=1&gpu={gpu}",
         server.url("")
     );
     let run = browse_with(
@@ -261,15 +260,25 @@ fn the_page_reads_back_what_the_native_renderer_draws() {
             "--status-expr",
             "JSON.stringify({status: window.relief.status(), pixels: window.relief.pixels()})",
         ],
-        &[],
+        env,
     );
     assert_eq!(run.code, 0, "{url}\n{}\n{}", run.stdout, run.stderr);
-    let s = &run.status["status"];
+    let s = run.status["status"].clone();
     use base64::Engine;
     let pixels = base64::engine::general_purpose::STANDARD.decode(run.status["pixels"].as_str().unwrap()).unwrap();
     let (native, native_triangles) = native_render(&local);
     assert_eq!(s["triangles"].as_u64(), Some(native_triangles), "the page refined the native strip: {s}");
-    compare_with_native(&pixels, &native, "readback");
+    compare_with_native(&pixels, &native, what);
+    s
+}
+
+/// The read-back path (`#readback=1`: the first complete frame drawn again into a texture and
+/// read back in the page, what the WebGPU test needs since a screenshot does not show it), here
+/// on WebGL2: its pixels are the native render's within the same tolerance.
+#[test]
+fn the_page_reads_back_what_the_native_renderer_draws() {
+    let s = read_back_and_compare("webgl2", &[], "readback");
+    assert!(s["backend"].as_str().unwrap_or_default().starts_with("Gl:"), "drawn with WebGL2: {s}");
 }
 
 /// Imagery: NASA's Visible Earth image (data/imagery, placed by its world file) draped on the
@@ -312,39 +321,8 @@ fn the_page_drapes_imagery_as_the_native_renderer_does() {
 /// the pixels are the native render's within the same tolerance.
 #[test]
 fn the_webgpu_path_reads_back_what_the_native_renderer_draws() {
-    let dir = tempfile::tempdir().unwrap();
-    let local = zurich(dir.path());
-    let mut files = viewer_files();
-    files.push(("zurich.relief".into(), local.clone()));
-    let server = serve(files, ServeOptions::default());
-    let [ex, ey, ez] = EYE;
-    let [lx, ly, lz] = LOOK;
-    let url = format!(
-        "{}#zurich.relief&eye={ex},{ey},{ez}&look={lx},{ly},{lz}&tau={TOLERANCE_PX}&hud=0&gpu=webgpu&readback=1",
-        server.url("")
-    );
-    let run = browse_with(
-        &url,
-        dir.path(),
-        SIZE,
-        None,
-        None,
-        &[
-            "--ready-expr",
-            "window.relief && window.relief.status().readback_done === true",
-            "--status-expr",
-            "JSON.stringify({status: window.relief.status(), pixels: window.relief.pixels()})",
-        ],
-        &[("RELIEF_CHROMIUM_FLAGS", "--enable-unsafe-webgpu")],
-    );
-    assert_eq!(run.code, 0, "{url}\n{}\n{}", run.stdout, run.stderr);
-    let s = &run.status["status"];
+    let s = read_back_and_compare("webgpu", &[("RELIEF_CHROMIUM_FLAGS", "--enable-unsafe-webgpu")], "webgpu");
     assert!(s["backend"].as_str().unwrap_or_default().starts_with("BrowserWebGpu"), "drawn with WebGPU: {s}");
-    use base64::Engine;
-    let pixels = base64::engine::general_purpose::STANDARD.decode(run.status["pixels"].as_str().unwrap()).unwrap();
-    let (native, native_triangles) = native_render(&local);
-    assert_eq!(s["triangles"].as_u64(), Some(native_triangles), "the page refined the native strip: {s}");
-    compare_with_native(&pixels, &native, "webgpu");
 }
 
 /// Every kind of bad input is a one-line message in the page, never a blank canvas.
