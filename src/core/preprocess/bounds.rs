@@ -44,6 +44,20 @@ pub fn raw_error(z: f32, za: f32, zb: f32) -> f64 {
     (z as f64 - 0.5 * (za as f64 + zb as f64)).abs()
 }
 
+/// What one level's pass reads and writes: heights, the finished bounds of finer levels, and
+/// the slots for this level's results. The whole-grid pass ([`compute_bounds`]) and the passes
+/// of sharded conversion (a window around a block, the levels above the blocks: see
+/// `preprocess::shard`) run the same arithmetic through this, so their results agree bit for bit.
+pub(crate) trait LevelRows {
+    /// Height of grid post `(x, y)` (beyond the DEM: its nearest edge post's).
+    fn z(&self, x: u32, y: u32) -> f32;
+    /// Bounds of the stored finer-level vertex `(x, y)` and whether it is *relevant* (see
+    /// `preprocess::shard`), or `None` where the pass does not hold it.
+    fn child(&self, x: u32, y: u32) -> Option<([f32; 2], bool)>;
+    /// Stores the bounds of `(x, y)`; `relevant` is whether a child was.
+    fn set(&self, x: u32, y: u32, error: f32, radius: f32, relevant: bool);
+}
+
 /// Heights and bounds (error, radius) shared across threads during one level: heights row-major
 /// over the DEM's `width × height` posts (a post beyond them reads as the nearest edge post: the
 /// edge-replicating padding, never stored), bounds row-major over the whole grid.
@@ -64,7 +78,7 @@ unsafe impl Send for SharedRows {}
 // SAFETY: as for Send.
 unsafe impl Sync for SharedRows {}
 
-impl SharedRows {
+impl LevelRows for SharedRows {
     #[inline(always)]
     fn z(&self, x: u32, y: u32) -> f32 {
         let i = y.min(self.height - 1) as usize * self.width as usize + x.min(self.width - 1) as usize;
@@ -72,14 +86,13 @@ impl SharedRows {
         unsafe { self.z.add(i).read() }
     }
     #[inline(always)]
-    fn get(&self, x: u32, y: u32) -> Record {
+    fn child(&self, x: u32, y: u32) -> Option<([f32; 2], bool)> {
         let i = y as usize * self.side + x as usize;
         // SAFETY: in bounds (callers pass grid positions); see the type's note on aliasing.
-        let [error, radius] = unsafe { self.bounds.add(i).read() };
-        Record { z: self.z(x, y), error, radius }
+        Some((unsafe { self.bounds.add(i).read() }, false))
     }
     #[inline(always)]
-    fn set_bounds(&self, x: u32, y: u32, error: f32, radius: f32) {
+    fn set(&self, x: u32, y: u32, error: f32, radius: f32, _relevant: bool) {
         // SAFETY: as above.
         unsafe { self.bounds.add(y as usize * self.side + x as usize).write([error, radius]) }
     }
@@ -110,50 +123,72 @@ fn nested(
     (err, rad)
 }
 
-/// Folds child `(cx, cy)` into the running error and radius of `(x, y, z)`, if it is stored
-/// (`cx ≤ kmax.0`, `cy ≤ kmax.1`: the stored rectangle of the children's level). A null child is
-/// never active, so its parent need not contain it.
+/// Folds child `(cx, cy)` into the running error, radius and relevance of `(x, y, z)`, if it is
+/// stored (`cx ≤ kmax.0`, `cy ≤ kmax.1`: the stored rectangle of the children's level) and held
+/// by the pass. A null child is never active, so its parent need not contain it.
 #[inline(always)]
-fn fold_child(
+fn fold_child<R: LevelRows>(
     spacing_m: [f64; 2],
-    rows: &SharedRows,
+    rows: &R,
     kmax: (u32, u32),
     me: (u32, u32, f32),
     (cx, cy): (u32, u32),
-    acc: &mut (f64, f64),
+    acc: &mut (f64, f64, bool),
 ) {
     if cx > kmax.0 || cy > kmax.1 {
         return;
     }
-    let c = rows.get(cx, cy);
-    acc.0 = acc.0.max(c.error as f64);
-    acc.1 = acc.1.max(distance_m(spacing_m, me, (cx, cy, c.z)) + c.radius as f64);
+    let Some(([error, radius], relevant)) = rows.child(cx, cy) else { return };
+    acc.0 = acc.0.max(error as f64);
+    acc.1 = acc.1.max(distance_m(spacing_m, me, (cx, cy, rows.z(cx, cy))) + radius as f64);
+    acc.2 |= relevant;
+}
+
+/// The first `x ≥ lo` of the progression `x0, x0 + stride, …`.
+#[inline(always)]
+fn first_from(x0: u32, stride: u32, lo: u32) -> u32 {
+    if lo <= x0 {
+        x0
+    } else {
+        x0 + (lo - x0).div_ceil(stride) * stride
+    }
 }
 
 /// One row of one level: the vertices, their split edges and their children are known from the
 /// level alone, so this avoids the general classification of [`nested`] (same arithmetic, same
-/// results; a test compares the two). Only the level's stored vertices (`x ≤ xmax`) are computed.
+/// results; a test compares the two). Only the level's stored vertices (`x ≤ xmax`) with
+/// `x_lo ≤ x ≤ x_hi` are computed; returns how many.
 #[inline(always)]
-fn level_row(grid: Grid, stored: &Stored, spacing_m: [f64; 2], rows: &SharedRows, level: u32, y: u32) -> u64 {
+#[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
+pub(crate) fn level_row<R: LevelRows>(
+    grid: Grid,
+    stored: &Stored,
+    spacing_m: [f64; 2],
+    rows: &R,
+    level: u32,
+    y: u32,
+    (x_lo, x_hi): (u32, u32),
+) -> u64 {
     let m = grid.max_coord();
     let odd = level % 2 == 1;
     let step = 1u32 << ((level - 1) / 2);
     let half = step / 2; // children of an edge midpoint are half a step away diagonally
-    let xmax = stored.max_at(level).0;
+    let xmax = stored.max_at(level).0.min(x_hi);
     let kmax = if level > 1 { stored.max_at(level - 1) } else { (0, 0) };
     let mut count = 0u64;
-    let mut finish = |x: u32, acc: (f64, f64)| {
+    let mut finish = |x: u32, acc: (f64, f64, bool)| {
         let err = if (x, y) == grid.centre() { f64::INFINITY } else { acc.0 };
-        rows.set_bounds(x, y, f32_up(err), f32_up(acc.1));
+        rows.set(x, y, f32_up(err), f32_up(acc.1), acc.2);
         count += 1;
     };
-    let fold = |me: (u32, u32, f32), c: (u32, u32), acc: &mut (f64, f64)| fold_child(spacing_m, rows, kmax, me, c, acc);
+    let fold =
+        |me: (u32, u32, f32), c: (u32, u32), acc: &mut (f64, f64, bool)| fold_child(spacing_m, rows, kmax, me, c, acc);
     if odd && (y / step).is_multiple_of(2) {
         // Midpoints of horizontal edges: x = step, 3·step, …
-        let mut x = step;
+        let mut x = first_from(step, 2 * step, x_lo);
         while x < m && x <= xmax {
             let z = rows.z(x, y);
-            let mut acc = (raw_error(z, rows.z(x - step, y), rows.z(x + step, y)), 0.0);
+            let mut acc = (raw_error(z, rows.z(x - step, y), rows.z(x + step, y)), 0.0, false);
             if half > 0 {
                 if y < m {
                     fold((x, y, z), (x + half, y + half), &mut acc);
@@ -169,10 +204,10 @@ fn level_row(grid: Grid, stored: &Stored, spacing_m: [f64; 2], rows: &SharedRows
         }
     } else if odd {
         // Midpoints of vertical edges: x = 0, 2·step, …, 2^n.
-        let mut x = 0;
+        let mut x = first_from(0, 2 * step, x_lo);
         while x <= m && x <= xmax {
             let z = rows.z(x, y);
-            let mut acc = (raw_error(z, rows.z(x, y - step), rows.z(x, y + step)), 0.0);
+            let mut acc = (raw_error(z, rows.z(x, y - step), rows.z(x, y + step)), 0.0, false);
             if half > 0 {
                 if x < m {
                     fold((x, y, z), (x + half, y + half), &mut acc);
@@ -189,7 +224,7 @@ fn level_row(grid: Grid, stored: &Stored, spacing_m: [f64; 2], rows: &SharedRows
     } else {
         // Square centres: x = step, 3·step, …; they bisect the diagonal joining the corner whose
         // coordinates are even multiples of 2·step with the one whose are odd multiples.
-        let mut x = step;
+        let mut x = first_from(step, 2 * step, x_lo);
         while x < m && x <= xmax {
             let z = rows.z(x, y);
             let rising = (((x - step) / (2 * step)) + ((y - step) / (2 * step))).is_multiple_of(2);
@@ -198,7 +233,7 @@ fn level_row(grid: Grid, stored: &Stored, spacing_m: [f64; 2], rows: &SharedRows
             } else {
                 (rows.z(x - step, y + step), rows.z(x + step, y - step))
             };
-            let mut acc = (raw_error(z, za, zb), 0.0);
+            let mut acc = (raw_error(z, za, zb), 0.0, false);
             fold((x, y, z), (x + step, y), &mut acc);
             fold((x, y, z), (x, y + step), &mut acc);
             fold((x, y, z), (x - step, y), &mut acc);
@@ -208,6 +243,15 @@ fn level_row(grid: Grid, stored: &Stored, spacing_m: [f64; 2], rows: &SharedRows
         }
     }
     count
+}
+
+/// The rows of `level` (stored ones, `y ≤ ymax`) that hold vertices: edge midpoints lie on every
+/// row that is a multiple of step, square centres on odd multiples.
+pub(crate) fn level_rows(grid: Grid, stored: &Stored, level: u32) -> impl Iterator<Item = u32> {
+    let step = 1u32 << ((level - 1) / 2);
+    let ymax = stored.max_at(level).1;
+    let (first, stride) = if level % 2 == 1 { (0, step) } else { (step, 2 * step) };
+    (first..grid.size().min(ymax + 1)).step_by(stride as usize)
 }
 
 /// Computes error and radius (`bounds[i] = [error, radius]`, row-major over the whole grid) for
@@ -233,20 +277,15 @@ pub fn compute_bounds(
     let stored = Stored::new(grid, width, height);
     let shared = SharedRows { z: z.as_ptr(), width, height, bounds: bounds.as_mut_ptr(), side: side as usize };
     for level in 1..=grid.levels() {
-        let step = 1u32 << ((level - 1) / 2);
-        let ymax = stored.max_at(level).1;
-        // Edge midpoints lie on every row that is a multiple of step; square centres on odd
-        // multiples.
-        let (first, stride) = if level % 2 == 1 { (0, step) } else { (step, 2 * step) };
-        let rows: Vec<u32> = (first..side.min(ymax + 1)).step_by(stride as usize).collect();
+        let rows: Vec<u32> = level_rows(grid, &stored, level).collect();
         rows.par_iter().try_for_each(|&y| -> Result<()> {
             check_cancel()?;
-            progress(level_row(grid, &stored, spacing_m, &shared, level, y));
+            progress(level_row(grid, &stored, spacing_m, &shared, level, y, (0, u32::MAX)));
             Ok(())
         })?;
     }
     for (x, y) in grid.corners() {
-        shared.set_bounds(x, y, f32::INFINITY, 0.0);
+        shared.set(x, y, f32::INFINITY, 0.0, false);
     }
     Ok(())
 }

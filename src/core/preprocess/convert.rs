@@ -286,16 +286,29 @@ impl dem::DemSource for TerrainSource<'_> {
     }
 }
 
-fn convert_source(
+/// What a conversion knows before reading a sample: the source, its grid, layout and stored
+/// vertices, spacing (metres, where from, header flags, centre latitude, degrees), the heights'
+/// scale to metres, and the output's length and directory.
+pub(crate) struct Prepared<'a> {
+    pub source: Box<dyn dem::DemSource + 'a>,
+    pub info: dem::DemInfo,
+    pub grid: Grid,
+    pub layout: AnyLayout,
+    pub stored: Stored,
+    pub spacing: ([f64; 2], &'static str, u32, f64, [f64; 2]),
+    pub z_scale: f64,
+    pub file_len: u64,
+    pub out_dir: PathBuf,
+}
+
+/// Checks the options, opens the source (unless given) and sizes the output; refuses what cannot
+/// be mapped before anything is created.
+pub(crate) fn prepare<'a>(
     input: &Path,
-    source: Option<Box<dyn dem::DemSource + '_>>,
+    source: Option<Box<dyn dem::DemSource + 'a>>,
     output: &Path,
     opts: &ConvertOptions,
-) -> Result<ConvertReport> {
-    let started = Instant::now();
-    let sampler = AnonSampler::start();
-    let mut steps = StepSeconds::default();
-
+) -> Result<Prepared<'a>> {
     if opts.z_scale == 0.0 || !opts.z_scale.is_finite() || !opts.z_offset.is_finite() {
         return Err(Error::InvalidArgument(format!(
             "the height scale {} and offset {} must be finite, the scale non-zero",
@@ -311,8 +324,7 @@ fn convert_source(
             });
         }
     }
-
-    let mut source = match source {
+    let source = match source {
         Some(s) => s,
         None => dem::open_with(input, opts.open_options())?,
     };
@@ -326,11 +338,10 @@ fn convert_source(
     })?;
     let layout =
         AnyLayout::new(opts.layout, grid, opts.tile.unwrap_or(0), RECORD_BYTES).map_err(Error::InvalidArgument)?;
-    let (spacing_m, spacing_source, flags, centre_lat, spacing_deg) = resolve_spacing(opts, info.spacing);
+    let spacing = resolve_spacing(opts, info.spacing);
     // Heights in metres: the source's vertical unit (feet, where its GeoKeys say so), then the
     // user's scale.
     let z_scale = opts.z_scale * info.georef.map_or(1.0, |g| g.vertical_metres());
-
     let out_dir = match output.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
@@ -338,22 +349,89 @@ fn convert_source(
     if output.is_dir() {
         return Err(Error::io(output, std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a directory")));
     }
-    let side = grid.size() as usize;
     let stored = Stored::new(grid, width, height);
-    let row = width as usize; // the height scratch holds the DEM's posts only
-                              // Sizes in u128 (at n = 31 they overflow u64). The output is mapped whole when read, and both
-                              // scratch grids are mapped whole here: refuse what cannot be mapped before creating anything.
+    // In u128 (at n = 31 it overflows u64). The output is mapped whole when read: refuse what
+    // cannot be mapped.
     let file_len = layout.records() as u128 * RECORD_BYTES as u128 + PAYLOAD_OFFSET as u128;
+    if file_len > MAX_MAPPED_BYTES as u128 {
+        let side = grid.size() as u64;
+        let what = "terrain file";
+        return Err(Error::TooLargeToMap { path: input.into(), side, what, bytes: file_len, limit: MAX_MAPPED_BYTES });
+    }
+    Ok(Prepared { source, info, grid, layout, stored, spacing, z_scale, file_len: file_len as u64, out_dir })
+}
+
+/// The terrain header of a conversion, with what only the samples tell (height range, voids
+/// filled, page map, checksum) left zero and the page map at one page.
+pub(crate) fn header_template(
+    layout: &AnyLayout,
+    info: &dem::DemInfo,
+    (spacing_m, flags, centre_lat, spacing_deg): ([f64; 2], u32, f64, [f64; 2]),
+    z_scale: f64,
+    opts: &ConvertOptions,
+) -> Header {
+    Header {
+        version: terrain::VERSION,
+        layout: layout.kind(),
+        layout_param: layout.param(),
+        record_format: terrain::RECORD_FORMAT_F32,
+        record_bytes: RECORD_BYTES,
+        n: layout.grid().n(),
+        flags: flags | FLAG_STORED_PAGES,
+        valid_window: [0, 0, info.width, info.height],
+        source_format: DemFormat::ALL.iter().position(|f| *f == info.format).unwrap_or(0) as u32,
+        records: layout.records(),
+        payload_offset: PAYLOAD_OFFSET,
+        payload_bytes: layout.records() * RECORD_BYTES as u64,
+        spacing_m,
+        z_scale,
+        z_offset: opts.z_offset,
+        z_min: 0.0,
+        z_max: 0.0,
+        nodata_filled: 0,
+        source_centre_lat_deg: centre_lat,
+        source_spacing_deg: spacing_deg,
+        georef: info.georef,
+        void_mask_offset: 0,
+        page_map_pages: 1,
+        payload_checksum: 0,
+    }
+}
+
+fn convert_source(
+    input: &Path,
+    source: Option<Box<dyn dem::DemSource + '_>>,
+    output: &Path,
+    opts: &ConvertOptions,
+) -> Result<ConvertReport> {
+    let started = Instant::now();
+    let sampler = AnonSampler::start();
+    let mut steps = StepSeconds::default();
+
+    let Prepared {
+        mut source,
+        info,
+        grid,
+        layout,
+        stored,
+        spacing: (spacing_m, spacing_source, flags, centre_lat, spacing_deg),
+        z_scale,
+        file_len,
+        out_dir,
+    } = prepare(input, source, output, opts)?;
+    let (width, height) = (info.width, info.height);
+    let side = grid.size() as usize;
+    let row = width as usize; // the height scratch holds the DEM's posts only
+    // Both scratch grids are mapped whole: refuse what cannot be mapped (in u128: at n = 31 the
+    // sizes overflow u64).
     let z_len = width as u128 * height as u128 * std::mem::size_of::<f32>() as u128;
     let bounds_len = grid.vertices() as u128 * std::mem::size_of::<[f32; 2]>() as u128;
-    for (what, bytes) in [("terrain file", file_len), ("conversion scratch", z_len + bounds_len)] {
-        if bytes > MAX_MAPPED_BYTES as u128 {
-            let side = grid.size() as u64;
-            return Err(Error::TooLargeToMap { path: input.into(), side, what, bytes, limit: MAX_MAPPED_BYTES });
-        }
+    if z_len + bounds_len > MAX_MAPPED_BYTES as u128 {
+        let (side, bytes) = (grid.size() as u64, z_len + bounds_len);
+        let what = "conversion scratch";
+        return Err(Error::TooLargeToMap { path: input.into(), side, what, bytes, limit: MAX_MAPPED_BYTES });
     }
-    // Each is at most MAX_MAPPED_BYTES now, so fits in u64.
-    let (file_len, z_len, bounds_len) = (file_len as u64, z_len as u64, bounds_len as u64);
+    let (z_len, bounds_len) = (z_len as u64, bounds_len as u64);
     let payload_bytes = file_len - PAYLOAD_OFFSET;
     let out_tmp = crate::sys::atomic_file::temp_beside(output)?;
     // The output is written once, sequentially, with positioned writes (no page faults, no
@@ -478,55 +556,16 @@ fn convert_source(
     // 5. Void mask, header, sync, rename.
     let t = Instant::now();
     let mut header = Header {
-        version: terrain::VERSION,
-        layout: layout.kind(),
-        layout_param: layout.param(),
-        record_format: terrain::RECORD_FORMAT_F32,
-        record_bytes: RECORD_BYTES,
-        n: grid.n(),
-        flags: flags | FLAG_STORED_PAGES,
-        valid_window: [0, 0, width, height],
-        source_format: DemFormat::ALL.iter().position(|f| *f == info.format).unwrap_or(0) as u32,
-        records: layout.records(),
-        payload_offset: PAYLOAD_OFFSET,
-        payload_bytes,
-        spacing_m,
-        z_scale,
-        z_offset: opts.z_offset,
         z_min,
         z_max,
         nodata_filled: nan_count,
-        source_centre_lat_deg: centre_lat,
-        source_spacing_deg: spacing_deg,
-        georef: info.georef,
-        void_mask_offset: 0,
         page_map_pages: map_pages as u32,
         payload_checksum,
+        ..header_template(&layout, &info, (spacing_m, flags, centre_lat, spacing_deg), z_scale, opts)
     };
     cancel::check()?;
-    let file_bytes;
-    {
-        use std::os::unix::fs::FileExt;
-        // On disk: header page, page map, stored pages (whole), void mask.
-        let mask_at = 4096 * (first_page + pages.count);
-        let mut stored_len = mask_at;
-        if let Some(mask) = &void_mask {
-            header.void_mask_offset = header.void_mask_start();
-            stored_len = mask_at + 8 + mask.bits.len() as u64;
-            out_file.write_all_at(&mask.checksum().to_le_bytes(), mask_at).at(output)?;
-            out_file.write_all_at(&mask.bits, mask_at + 8).at(output)?;
-        }
-        out_file.set_len(stored_len).map_err(|e| file_system_limit(e, output, stored_len))?;
-        out_file.write_all_at(&map_bytes, 4096).at(output)?;
-        out_file.write_all_at(&crate::format::Format::encode(&header).0, 0).at(output)?;
-        file_bytes = stored_len;
-    }
-    out_file.sync_all().at(output)?;
-    drop(out_file);
-    out_tmp.persist(output).map_err(|e| Error::io(output, e.error))?;
-    if let Ok(dir) = File::open(&out_dir) {
-        let _ = dir.sync_all(); // make the rename durable where the platform allows
-    }
+    let file_bytes =
+        finish_file(out_tmp, out_file, output, &out_dir, &mut header, &map_bytes, first_page + pages.count, void_mask.as_ref())?;
     steps.write = t.elapsed().as_secs_f64();
 
     let seconds = started.elapsed().as_secs_f64();
@@ -556,6 +595,43 @@ fn convert_source(
     })
 }
 
+/// Ends a terrain file whose payload pages are written (header page and map left for last):
+/// the void mask after the `pages_end` pages, the length, the page map, the header (its void
+/// mask offset set here), sync, and the rename of the temporary over `output`. Returns the
+/// file's length.
+#[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
+pub(crate) fn finish_file(
+    out_tmp: tempfile::NamedTempFile,
+    out_file: File,
+    output: &Path,
+    out_dir: &Path,
+    header: &mut Header,
+    map_bytes: &[u8],
+    pages_end: u64,
+    void_mask: Option<&VoidMask>,
+) -> Result<u64> {
+    use std::os::unix::fs::FileExt;
+    // On disk: header page, page map, stored pages (whole), void mask.
+    let mask_at = 4096 * pages_end;
+    let mut stored_len = mask_at;
+    if let Some(mask) = void_mask {
+        header.void_mask_offset = header.void_mask_start();
+        stored_len = mask_at + 8 + mask.bits.len() as u64;
+        out_file.write_all_at(&mask.checksum().to_le_bytes(), mask_at).at(output)?;
+        out_file.write_all_at(&mask.bits, mask_at + 8).at(output)?;
+    }
+    out_file.set_len(stored_len).map_err(|e| file_system_limit(e, output, stored_len))?;
+    out_file.write_all_at(map_bytes, 4096).at(output)?;
+    out_file.write_all_at(&crate::format::Format::encode(&*header).0, 0).at(output)?;
+    out_file.sync_all().at(output)?;
+    drop(out_file);
+    out_tmp.persist(output).map_err(|e| Error::io(output, e.error))?;
+    if let Ok(dir) = File::open(out_dir) {
+        let _ = dir.sync_all(); // make the rename durable where the platform allows
+    }
+    Ok(stored_len)
+}
+
 /// The DEM's heights, row-major from the south; a post beyond them has its nearest edge post's.
 #[derive(Clone, Copy)]
 struct Heights<'a> {
@@ -572,18 +648,19 @@ impl Heights<'_> {
 }
 
 /// Which payload pages (4 KiB, from the payload's start) hold a stored record.
-struct PresentPages {
-    bits: Vec<u64>,
-    count: u64,
+pub(crate) struct PresentPages {
+    /// One bit per payload page.
+    pub bits: Vec<u64>,
+    pub count: u64,
 }
 
 impl PresentPages {
-    fn has(&self, page: u64) -> bool {
+    pub fn has(&self, page: u64) -> bool {
         self.bits.get((page / 64) as usize).is_some_and(|w| w >> (page % 64) & 1 == 1)
     }
 
     /// Runs of present pages `(first, pages)`.
-    fn runs(&self) -> Vec<(u64, u64)> {
+    pub fn runs(&self) -> Vec<(u64, u64)> {
         let mut runs: Vec<(u64, u64)> = Vec::new();
         for (k, &w) in self.bits.iter().enumerate() {
             let mut w = w;
@@ -601,7 +678,7 @@ impl PresentPages {
 }
 
 /// Marks the pages of every stored vertex's record (level by level, rows in parallel).
-fn stored_pages(layout: &AnyLayout, stored: &Stored, payload_bytes: u64) -> PresentPages {
+pub(crate) fn stored_pages(layout: &AnyLayout, stored: &Stored, payload_bytes: u64) -> PresentPages {
     use std::sync::atomic::{AtomicU64, Ordering};
     struct Mark<'a> {
         stored: &'a Stored,
