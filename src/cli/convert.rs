@@ -51,6 +51,19 @@ pub struct Args {
     /// 12 bytes per post of the padded grid.
     #[arg(long, value_name = "DIR")]
     pub scratch_dir: Option<PathBuf>,
+    /// Convert only shard I of N (0 <= I < N) into OUTPUT, a shard file: the blocks of the grid
+    /// that shard owns, with the partial bounds its neighbours need. Merge all N with --merge to
+    /// get the terrain file a single process writes, byte for byte (see tools/dask_convert.py to
+    /// run the shards on a Dask cluster). Needs a DEM without nodata posts.
+    #[arg(long, value_name = "I/N", conflicts_with = "merge")]
+    pub shard: Option<String>,
+    /// The INPUTs are the N shard files of one sharded conversion (any order): merge them into
+    /// OUTPUT. A missing, repeated or foreign shard is an error and nothing is written.
+    #[arg(long)]
+    pub merge: bool,
+    /// Worker threads (default: one per core).
+    #[arg(long, value_name = "N")]
+    pub threads: Option<usize>,
     /// Print the conversion report as JSON on stdout.
     #[arg(long)]
     pub json: bool,
@@ -68,8 +81,46 @@ fn parse_spacing(s: &str) -> anyhow::Result<[f64; 2]> {
     }
 }
 
+fn parse_shard(s: &str) -> anyhow::Result<(u32, u32)> {
+    let parsed =
+        s.split_once('/').and_then(|(i, n)| Some((i.trim().parse::<u32>().ok()?, n.trim().parse::<u32>().ok()?)));
+    match parsed {
+        Some((i, n)) if n >= 1 && i < n => Ok((i, n)),
+        _ => bail!("--shard: expected I/N with 0 <= I < N (e.g. 3/16), got '{s}'"),
+    }
+}
+
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    match a.threads {
+        Some(0) => bail!("--threads: expected at least 1"),
+        Some(t) => {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;
+            pool.install(|| run_in_pool(a))
+        }
+        None => run_in_pool(a),
+    }
+}
+
+fn run_in_pool(a: Args) -> anyhow::Result<ExitCode> {
     check_output_file("", &a.output)?;
+    if a.merge {
+        let r = relief::preprocess::shard::merge(&a.inputs, &a.output, &progress(a.quiet))?;
+        if a.json {
+            print_json(&r)?;
+        } else {
+            println!(
+                "{} shards -> {}: {} records, {} coarse, {} seam bounds, {:.1} MiB, {:.2} s",
+                r.shards,
+                r.output,
+                r.records,
+                r.coarse_vertices,
+                r.seam_bounds,
+                r.file_bytes as f64 / (1u64 << 20) as f64,
+                r.seconds
+            );
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
     if let Some(d) = &a.scratch_dir {
         if !d.is_dir() {
             bail!("--scratch-dir: {}: no such directory", d.display());
@@ -91,6 +142,36 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     opts.scratch_dir = a.scratch_dir;
     opts.progress = progress(a.quiet);
     let input = &a.inputs[0];
+    if let Some(spec) = &a.shard {
+        let which = parse_shard(spec)?;
+        // Test hook: RELIEF_TEST_KILL_SHARD_AFTER=K aborts the process once K blocks are written
+        // (a shard killed mid-way, for the rerun tests).
+        let kill_after: Option<u32> = std::env::var("RELIEF_TEST_KILL_SHARD_AFTER").ok().and_then(|v| v.parse().ok());
+        let after = |done: u32| {
+            if kill_after.is_some_and(|k| done >= k) {
+                std::process::abort();
+            }
+        };
+        let r = relief::preprocess::shard::convert_shard(&a.inputs, &a.output, &opts, which, &after)?;
+        if a.json {
+            print_json(&r)?;
+        } else {
+            println!(
+                "shard {}/{} -> {}: {} blocks of {}², {} vertices, {} seam bounds, {:.1} MiB, {:.2} s ({:.1} M vertices/s)",
+                r.shard,
+                r.shards,
+                r.output.display(),
+                r.blocks,
+                r.block_side,
+                r.vertices,
+                r.foreign,
+                r.file_bytes as f64 / (1u64 << 20) as f64,
+                r.seconds,
+                r.vertices_per_s / 1e6
+            );
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
     let r = convert_many(&a.inputs, &a.output, &opts).map_err(|e| match e {
         relief::Error::UnknownFormat { .. } => anyhow::anyhow!("{e} (--format)"),
         e => e.into(),

@@ -154,11 +154,12 @@ pub enum FileKind {
     MetaNode,
     Pages,
     Imagery,
+    Shard,
 }
 
 impl FileKind {
-    pub const ALL: [FileKind; 5] =
-        [FileKind::Terrain, FileKind::Vdt, FileKind::MetaNode, FileKind::Pages, FileKind::Imagery];
+    pub const ALL: [FileKind; 6] =
+        [FileKind::Terrain, FileKind::Vdt, FileKind::MetaNode, FileKind::Pages, FileKind::Imagery, FileKind::Shard];
 
     /// What messages call it.
     pub fn name(self) -> &'static str {
@@ -168,6 +169,7 @@ impl FileKind {
             FileKind::MetaNode => "meta-node file",
             FileKind::Pages => "page file",
             FileKind::Imagery => "imagery tile file",
+            FileKind::Shard => "conversion shard",
         }
     }
 
@@ -179,6 +181,7 @@ impl FileKind {
             FileKind::MetaNode => *b"\x89RLFMNT\n",
             FileKind::Pages => *b"\x89RLFPGS\n",
             FileKind::Imagery => *b"\x89RLFIMG\n",
+            FileKind::Shard => *b"\x89RLFSHD\n",
         }
     }
 

@@ -684,6 +684,12 @@ impl PathSubject {
                     path.display()
                 )))
             }
+            Some(FileKind::Shard) => {
+                return Err(Error::InvalidArgument(format!(
+                    "{}: a conversion shard is not a terrain yet (merge the shards: relief convert --merge)",
+                    path.display()
+                )))
+            }
             Some(FileKind::Vdt) | None => {
                 let mesh = crate::mesh::read_mesh(path)?;
                 let b = mesh.bounds().ok_or_else(|| Error::bad_mesh(path, "no vertices"))?;

@@ -1,11 +1,12 @@
-//! relief's five file formats and the one container they share.
+//! relief's six file formats and the one container they share.
 //!
 //! Every relief file starts with the same 256-byte header block:
 //!
 //! ```text
 //! offset size  field
 //!      0    8  magic: "\x89RELIEF\n" (terrain), "\x89RLFVDT\n" (VDT), "\x89RLFMNT\n" (meta-node),
-//!              "\x89RLFPGS\n" (pages), "\x89RLFIMG\n" (imagery tiles)
+//!              "\x89RLFPGS\n" (pages), "\x89RLFIMG\n" (imagery tiles),
+//!              "\x89RLFSHD\n" (conversion shard)
 //!      8    4  version of that format
 //!     12  236  the format's own fields (little-endian)
 //!    248    8  header checksum: XXH3-64 of bytes 0..248
@@ -20,7 +21,8 @@
 //! - [`vdt`]: a view-dependence forest (the meta-node build's intermediate file);
 //! - [`metanode`]: meta-node trees blocked into disk pages (DATA + MNT);
 //! - [`pagefile`]: self-contained disk pages with their directory and k-d tree;
-//! - [`imagery`]: an image's mip levels in tiles, for draping imagery larger than memory.
+//! - [`imagery`]: an image's mip levels in tiles, for draping imagery larger than memory;
+//! - [`shard`]: one shard of a sharded conversion, merged into a terrain file.
 
 use std::path::Path;
 
@@ -32,6 +34,7 @@ use crate::pager::source::Source;
 pub mod imagery;
 pub mod metanode;
 pub mod pagefile;
+pub mod shard;
 pub mod terrain;
 pub mod vdt;
 
@@ -51,6 +54,7 @@ impl FileKind {
             FileKind::MetaNode => metanode::VERSION,
             FileKind::Pages => pagefile::VERSION,
             FileKind::Imagery => imagery::VERSION,
+            FileKind::Shard => shard::VERSION,
         }
     }
 

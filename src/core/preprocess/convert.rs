@@ -422,8 +422,8 @@ fn convert_source(
     let (width, height) = (info.width, info.height);
     let side = grid.size() as usize;
     let row = width as usize; // the height scratch holds the DEM's posts only
-    // Both scratch grids are mapped whole: refuse what cannot be mapped (in u128: at n = 31 the
-    // sizes overflow u64).
+                              // Both scratch grids are mapped whole: refuse what cannot be mapped (in u128: at n = 31 the
+                              // sizes overflow u64).
     let z_len = width as u128 * height as u128 * std::mem::size_of::<f32>() as u128;
     let bounds_len = grid.vertices() as u128 * std::mem::size_of::<[f32; 2]>() as u128;
     if z_len + bounds_len > MAX_MAPPED_BYTES as u128 {
@@ -564,8 +564,16 @@ fn convert_source(
         ..header_template(&layout, &info, (spacing_m, flags, centre_lat, spacing_deg), z_scale, opts)
     };
     cancel::check()?;
-    let file_bytes =
-        finish_file(out_tmp, out_file, output, &out_dir, &mut header, &map_bytes, first_page + pages.count, void_mask.as_ref())?;
+    let file_bytes = finish_file(
+        out_tmp,
+        out_file,
+        output,
+        &out_dir,
+        &mut header,
+        &map_bytes,
+        first_page + pages.count,
+        void_mask.as_ref(),
+    )?;
     steps.write = t.elapsed().as_secs_f64();
 
     let seconds = started.elapsed().as_secs_f64();

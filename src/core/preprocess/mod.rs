@@ -7,5 +7,7 @@ pub mod bounds;
 pub mod convert;
 pub mod fill;
 pub mod inspect;
+#[cfg(feature = "native")]
+pub mod shard;
 
 pub use bounds::*;
