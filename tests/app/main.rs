@@ -28,4 +28,5 @@ mod pages;
 mod refine;
 mod remote;
 mod render;
+mod shard;
 mod vdt_build;

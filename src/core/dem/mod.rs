@@ -145,6 +145,14 @@ pub trait DemSource {
     /// Streams every sample exactly once, in runs, in any order. Stops at the first error the
     /// sink returns (used for cancellation) and passes it on.
     fn read(&mut self, sink: &mut dyn FnMut(Run<'_>) -> Result<()>) -> Result<()>;
+
+    /// Streams at least the samples of the window `[x0, x1) × [row0, row1)` (columns, rows from
+    /// the north), each once, and possibly others (the caller keeps what it needs). The default
+    /// streams every sample; a mosaic opens only the tiles the window touches.
+    fn read_window(&mut self, window: [u32; 4], sink: &mut dyn FnMut(Run<'_>) -> Result<()>) -> Result<()> {
+        let _ = window;
+        self.read(sink)
+    }
 }
 
 /// Opens `path` as a DEM: `format` forces a reader; otherwise the format is detected from the

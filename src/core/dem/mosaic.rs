@@ -189,9 +189,18 @@ impl DemSource for Mosaic {
     }
 
     fn read(&mut self, sink: &mut dyn FnMut(Run<'_>) -> Result<()>) -> Result<()> {
+        self.read_window([0, 0, self.info.width, self.info.height], sink)
+    }
+
+    fn read_window(&mut self, window: [u32; 4], sink: &mut dyn FnMut(Run<'_>) -> Result<()>) -> Result<()> {
+        let [wx0, wr0, wx1, wr1] = window;
         let mut spans = Vec::new();
         for k in 0..self.tiles.len() {
             let t = self.tiles[k].clone();
+            // A tile the window does not touch is not opened (sharded conversion reads windows).
+            if t.x0 >= wx1 || t.x0 + t.width <= wx0 || t.y0 >= wr1 || t.y0 + t.height <= wr0 {
+                continue;
+            }
             let mut source = super::open_with(&t.path, self.open)?;
             let info = source.info();
             if (info.width, info.height) != (t.width, t.height) {
@@ -214,7 +223,7 @@ impl DemSource for Mosaic {
         // Gaps: posts no tile covers, as nodata.
         let nan = vec![f64::NAN; MAX_RUN];
         let all = self.tiles.len();
-        for row in 0..self.info.height {
+        for row in wr0..wr1.min(self.info.height) {
             self.own_spans(all, row, 0..self.info.width, &mut spans);
             for &(s, e) in &spans {
                 let mut x = s;

@@ -169,6 +169,9 @@ pub struct ShardReport {
     pub shards: u32,
     pub blocks: u32,
     pub block_side: u32,
+    /// DEM posts the shard held (its blocks and their reach), of the DEM's `dem_posts`.
+    pub window_posts: u64,
+    pub dem_posts: u64,
     /// Vertices whose records this shard wrote.
     pub vertices: u64,
     pub foreign: u64,
@@ -439,7 +442,9 @@ pub fn convert_shard(
     let bar = opts.progress.bar("read", width as u64 * height as u64, "samples");
     let mut voids = 0u64;
     if !blocks.is_empty() {
-        source.read(&mut |run: Run<'_>| {
+        // Columns x, rows from the north.
+        let rows = [hx0, height - 1 - hy1, hx1 + 1, height - hy0];
+        source.read_window(rows, &mut |run: Run<'_>| {
             cancel::check()?;
             bar.inc(run.values.len() as u64);
             let end = run.x0 as u64 + run.values.len() as u64;
@@ -568,6 +573,8 @@ pub fn convert_shard(
         shards,
         blocks: blocks.len() as u32,
         block_side: 1 << plan.block_bits,
+        window_posts: if blocks.is_empty() { 0 } else { hw as u64 * hh as u64 },
+        dem_posts: width as u64 * height as u64,
         vertices: records,
         foreign: foreign.len() as u64,
         file_bytes: file_len,
