@@ -31,6 +31,8 @@ pub mod remote;
 #[cfg(feature = "serve")]
 pub mod serve;
 pub mod source;
+#[cfg(feature = "native")]
+pub mod upload;
 pub mod sparse;
 
 use std::ops::Deref;

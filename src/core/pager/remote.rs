@@ -159,7 +159,7 @@ impl S3Signer {
 
 #[cfg(feature = "native")]
 /// `s3://BUCKET/KEY` as its bucket and key.
-fn s3_parts(location: &str) -> Result<Option<(&str, &str)>> {
+pub(crate) fn s3_parts(location: &str) -> Result<Option<(&str, &str)>> {
     let Some(rest) = location.strip_prefix("s3://") else { return Ok(None) };
     match rest.split_once('/').filter(|(b, k)| !b.is_empty() && !k.is_empty()) {
         Some(parts) => Ok(Some(parts)),

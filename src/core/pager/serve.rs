@@ -34,6 +34,9 @@
 //! - Keep-alive: requests are read one after another on a connection (pipelining works) until
 //!   the client closes or asks `Connection: close` (HTTP/1.0: unless it asks `keep-alive`).
 //! - A request head over 16 KiB is a 431, a malformed one a 400; both close the connection.
+//! - With [`ServeOptions::uploads`] (`relief serve --uploads DIR`), S3-style uploads into that
+//!   directory (a single `PUT`, or a multipart upload; see [`upload`]): a stand-in bucket for
+//!   sharded conversion's tests. Uploaded objects are then served like the configured names.
 //!
 //! Bodies are read with positioned reads in chunks of at most 1 MiB, never the whole file. The
 //! latency is slept after a request is read and before its answer is written, in the connection's
@@ -64,6 +67,9 @@ const CHUNK_BYTES: u64 = 1 << 20;
 /// A request body (`Content-Length`) read and discarded to keep a connection; a longer one, or a
 /// chunked one, is answered and the connection closed.
 const MAX_DISCARDED_BODY: u64 = 64 * 1024;
+
+/// The largest upload body taken (an object or one part of a multipart upload).
+const MAX_UPLOAD_BODY: u64 = 64 << 20;
 
 /// Faults to inject, shared with the server while it runs ([`Server::faults`]). The counts are
 /// "the next N requests": each `GET` or `HEAD` takes at most one fault, trying `drop_next`, then
@@ -109,6 +115,8 @@ pub struct Server {
 /// What the accept thread, the connections and the handle share.
 struct Shared {
     files: HashMap<String, PathBuf>,
+    uploads: Option<PathBuf>,
+    upload_ids: AtomicU64,
     latency: Duration,
     faults: Arc<Faults>,
     requests: AtomicU64,
@@ -174,6 +182,8 @@ impl Server {
         let addr = listener.local_addr().map_err(|e| Error::io(bind.to_string(), e))?;
         let shared = Arc::new(Shared {
             files: map,
+            uploads: options.uploads,
+            upload_ids: AtomicU64::new(0),
             latency: options.latency,
             faults: options.faults,
             requests: AtomicU64::new(0),
@@ -346,6 +356,29 @@ fn serve_connection(shared: &Shared, stream: &TcpStream) {
             }
         };
         let mut keep = req.keep_alive();
+        if let (Some(dir), "PUT" | "POST" | "DELETE") = (&shared.uploads, req.method.as_str()) {
+            // An upload: its body, whole (parts are a few MiB).
+            let n = match req.header("content-length").map(|v| v.trim().parse::<u64>()) {
+                None => 0,
+                Some(Ok(n)) if n <= MAX_UPLOAD_BODY => n,
+                _ => {
+                    let _ = simple(&mut out, 413, "Content Too Large", false, false, "upload bodies need a Content-Length of at most 64 MiB");
+                    return close(stream);
+                }
+            };
+            let mut body = Vec::with_capacity(n as usize);
+            match io::copy(&mut (&mut reader).take(n), &mut body) {
+                Ok(got) if got == n => {}
+                _ => return,
+            }
+            if upload(shared, dir, &req, &body, keep, &mut out).is_err() {
+                return;
+            }
+            if !keep {
+                return close(stream);
+            }
+            continue;
+        }
         // The body of a request we do not use: read past it to keep the connection in step.
         if req.header("transfer-encoding").is_some() {
             keep = false;
@@ -400,6 +433,8 @@ struct Request {
     method: String,
     /// The decoded path without its leading '/' (and without a query).
     name: String,
+    /// The query, undecoded, without its '?'.
+    query: String,
     /// The minor version of HTTP/1.x.
     minor: u8,
     /// Names lower-cased, values trimmed.
@@ -497,7 +532,8 @@ fn parse_head(lines: &[Vec<u8>]) -> Result<Request, HeadError> {
         }
         _ => target,
     };
-    let path = path.split(['?', '#']).next().unwrap_or_default();
+    let path = path.split('#').next().unwrap_or_default();
+    let (path, query) = path.split_once('?').unwrap_or((path, ""));
     let name = match path.strip_prefix('/') {
         Some(p) => percent_decode(p).ok_or(HeadError::Bad("invalid percent-encoding in the path"))?,
         // '*' (OPTIONS) and the like: no file has such a name.
@@ -519,7 +555,7 @@ fn parse_head(lines: &[Vec<u8>]) -> Result<Request, HeadError> {
         let value = String::from_utf8_lossy(value).trim_matches([' ', '\t']).to_string();
         headers.push((name, value));
     }
-    Ok(Request { method: method.to_string(), name, minor, headers })
+    Ok(Request { method: method.to_string(), name, query: query.to_string(), minor, headers })
 }
 
 /// Percent-decodes a path; `None` for a bad escape or bytes that are not UTF-8.
@@ -718,7 +754,8 @@ fn answer(shared: &Shared, req: &Request, keep: bool, out: &mut impl Write) -> i
         return Ok(next);
     }
     let name = if req.name.is_empty() && shared.files.contains_key("index.html") { "index.html" } else { &req.name };
-    let Some(path) = shared.files.get(name) else {
+    let uploaded = shared.uploads.as_ref().and_then(|d| object_path(d, name)).filter(|p| p.is_file());
+    let Some(path) = shared.files.get(name).or(uploaded.as_ref()) else {
         note(404, None);
         simple(out, 404, "Not Found", keep, head_only, &format!("no file '/{}' here", req.name))?;
         return Ok(next);
@@ -844,6 +881,129 @@ fn http_date(t: SystemTime) -> String {
         WEEKDAYS[days.rem_euclid(7) as usize],
         MONTHS[(month - 1) as usize]
     )
+}
+
+/// Where uploaded object `name` (`bucket/key`) lives under `dir`; `None` for a name that would
+/// leave it.
+fn object_path(dir: &std::path::Path, name: &str) -> Option<PathBuf> {
+    let ok = !name.is_empty() && name.split('/').all(|c| !c.is_empty() && c != "." && c != "..");
+    ok.then(|| dir.join(name))
+}
+
+/// The value of `key` in a query string.
+fn query_value<'a>(query: &'a str, key: &str) -> Option<&'a str> {
+    query.split('&').find_map(|kv| match kv.split_once('=') {
+        Some((k, v)) if k == key => Some(v),
+        None if kv == key => Some(""),
+        _ => None,
+    })
+}
+
+const S3_XML_NS: &str = "http://s3.amazonaws.com/doc/2006-03-01/";
+/// The smallest part but the last of a multipart upload, as S3 enforces.
+pub const MIN_PART_BYTES: u64 = 5 << 20;
+
+/// An S3-style upload into `dir` (no authentication: a test and local server):
+/// `PUT bucket/key` writes an object; `POST ?uploads` starts a multipart upload, `PUT
+/// ?partNumber=N&uploadId=U` stores part N, `POST ?uploadId=U` completes it (parts in the order
+/// listed; every part but the last at least 5 MiB, else `EntityTooSmall`), `DELETE ?uploadId=U`
+/// aborts it. Objects appear whole, by rename, when written or completed.
+fn upload(
+    shared: &Shared,
+    dir: &std::path::Path,
+    req: &Request,
+    body: &[u8],
+    keep: bool,
+    out: &mut impl Write,
+) -> io::Result<()> {
+    let reply = |out: &mut dyn Write, status: u16, reason: &str, extra: &str, body: &str| -> io::Result<()> {
+        let mut head = status_head(status, reason);
+        let kind = if body.starts_with('<') { "application/xml" } else { "text/plain; charset=utf-8" };
+        head.push_str(&format!("{extra}Content-Type: {kind}\r\nContent-Length: {}\r\n", body.len()));
+        end_head(&mut head, keep, req.minor);
+        head.push_str(body);
+        out.write_all(head.as_bytes())
+    };
+    let Some(object) = object_path(dir, &req.name).filter(|_| req.name.contains('/')) else {
+        return reply(out, 400, "Bad Request", "", "uploads go to bucket/key\n");
+    };
+    let parts_dir = |id: &str| dir.join(".uploads").join(id);
+    let write_whole = |to: &std::path::Path, bytes: &[u8]| -> io::Result<()> {
+        std::fs::create_dir_all(to.parent().unwrap_or(dir))?;
+        let tmp = to.with_extension("upload-tmp");
+        std::fs::write(&tmp, bytes)?;
+        std::fs::rename(&tmp, to)
+    };
+    let err500 = |out: &mut dyn Write, e: io::Error| reply(out, 500, "Internal Server Error", "", &format!("{e}\n"));
+    let (bucket, key) = req.name.split_once('/').unwrap_or_default();
+    match (req.method.as_str(), query_value(&req.query, "uploads"), query_value(&req.query, "uploadId")) {
+        ("POST", Some(_), _) => {
+            let id = format!("u{}", shared.upload_ids.fetch_add(1, Ordering::SeqCst));
+            if let Err(e) = std::fs::create_dir_all(parts_dir(&id)) {
+                return err500(out, e);
+            }
+            let xml = format!(
+                "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<InitiateMultipartUploadResult xmlns=\"{S3_XML_NS}\"><Bucket>{bucket}</Bucket><Key>{key}</Key><UploadId>{id}</UploadId></InitiateMultipartUploadResult>"
+            );
+            reply(out, 200, "OK", "", &xml)
+        }
+        ("PUT", _, Some(id)) => {
+            let number = query_value(&req.query, "partNumber").and_then(|n| n.parse::<u16>().ok()).filter(|&n| n >= 1);
+            let (Some(number), true) = (number, parts_dir(id).is_dir()) else {
+                return reply(out, 404, "Not Found", "", "<Error><Code>NoSuchUpload</Code></Error>");
+            };
+            if let Err(e) = write_whole(&parts_dir(id).join(number.to_string()), body) {
+                return err500(out, e);
+            }
+            let etag = format!("\"{:016x}\"", xxhash_rust::xxh3::xxh3_64(body));
+            reply(out, 200, "OK", &format!("ETag: {etag}\r\n"), "")
+        }
+        ("POST", _, Some(id)) => {
+            if !parts_dir(id).is_dir() {
+                return reply(out, 404, "Not Found", "", "<Error><Code>NoSuchUpload</Code></Error>");
+            }
+            // The part numbers listed, in order.
+            let text = String::from_utf8_lossy(body);
+            let numbers: Vec<&str> = text.split("<PartNumber>").skip(1).filter_map(|p| p.split('<').next()).collect();
+            let mut sizes = Vec::new();
+            for n in &numbers {
+                match std::fs::metadata(parts_dir(id).join(n.trim())) {
+                    Ok(m) => sizes.push(m.len()),
+                    Err(_) => return reply(out, 400, "Bad Request", "", "<Error><Code>InvalidPart</Code></Error>"),
+                }
+            }
+            if numbers.is_empty() || sizes[..sizes.len() - 1].iter().any(|&s| s < MIN_PART_BYTES) {
+                return reply(out, 400, "Bad Request", "", "<Error><Code>EntityTooSmall</Code></Error>");
+            }
+            let assembled = (|| -> io::Result<()> {
+                std::fs::create_dir_all(object.parent().unwrap_or(dir))?;
+                let tmp = object.with_extension("upload-tmp");
+                let mut f = File::create(&tmp)?;
+                for n in &numbers {
+                    io::copy(&mut File::open(parts_dir(id).join(n.trim()))?, &mut f)?;
+                }
+                f.sync_all()?;
+                std::fs::rename(&tmp, &object)?;
+                std::fs::remove_dir_all(parts_dir(id))
+            })();
+            if let Err(e) = assembled {
+                return err500(out, e);
+            }
+            let xml = format!(
+                "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<CompleteMultipartUploadResult xmlns=\"{S3_XML_NS}\"><Bucket>{bucket}</Bucket><Key>{key}</Key><ETag>\"{id}\"</ETag></CompleteMultipartUploadResult>"
+            );
+            reply(out, 200, "OK", "", &xml)
+        }
+        ("DELETE", _, Some(id)) => {
+            let _ = std::fs::remove_dir_all(parts_dir(id));
+            reply(out, 204, "No Content", "", "")
+        }
+        ("PUT", None, None) => match write_whole(&object, body) {
+            Ok(()) => reply(out, 200, "OK", &format!("ETag: \"{:016x}\"\r\n", xxhash_rust::xxh3::xxh3_64(body)), ""),
+            Err(e) => err500(out, e),
+        },
+        _ => reply(out, 405, "Method Not Allowed", "", "405: uploads are PUT, POST ?uploads / ?uploadId, DELETE ?uploadId\n"),
+    }
 }
 
 #[cfg(test)]
