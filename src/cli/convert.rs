@@ -19,7 +19,9 @@ pub struct Args {
     /// nodata; where tiles overlap the first given wins.
     #[arg(required = true, num_args = 1.., value_name = "INPUT")]
     pub inputs: Vec<PathBuf>,
-    /// Terrain file to write (replaced atomically if it exists).
+    /// Terrain file to write (replaced atomically if it exists); with --merge also
+    /// s3://bucket/key, uploaded in parts to the endpoint of AWS_ENDPOINT_URL_S3 (or AWS itself),
+    /// signed with AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY where set.
     pub output: PathBuf,
     /// Record order in the file.
     #[arg(long, value_parser = layout_parser(), default_value = "interleaved")]
@@ -102,9 +104,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 }
 
 fn run_in_pool(a: Args) -> anyhow::Result<ExitCode> {
-    check_output_file("", &a.output)?;
+    let to_bucket = a.merge && a.output.to_str().is_some_and(|o| o.starts_with("s3://"));
+    if !to_bucket {
+        check_output_file("", &a.output)?;
+    }
     if a.merge {
-        let r = relief::preprocess::shard::merge(&a.inputs, &a.output, &progress(a.quiet))?;
+        let s3 = relief::pager::remote::S3Config::from_env()?;
+        let output = a.output.to_string_lossy();
+        let r = relief::preprocess::shard::merge(&a.inputs, &output, &s3, &progress(a.quiet))?;
         if a.json {
             print_json(&r)?;
         } else {

@@ -34,6 +34,10 @@ pub struct Args {
     /// a link that opens each terrain in it (http://HOST:PORT/#NAME).
     #[arg(long)]
     pub viewer: bool,
+    /// Also take S3-style uploads (PUT, multipart) of bucket/key into this directory, and serve
+    /// what is uploaded: a stand-in bucket for tests (no authentication; keep it on loopback).
+    #[arg(long, value_name = "DIR")]
+    pub uploads: Option<PathBuf>,
     /// Where the built viewer is (default: $RELIEF_VIEWER_DIR, else target/viewer beside the
     /// build of this binary, where tools/web.sh puts it).
     #[arg(long, value_name = "DIR", requires = "viewer")]
@@ -92,7 +96,16 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             files.push((f.to_string(), dir.join(f)));
         }
     }
-    let options = ServeOptions { latency: Duration::from_secs_f64(a.latency_ms / 1000.0), ..Default::default() };
+    if let Some(d) = &a.uploads {
+        if !d.is_dir() {
+            bail!("--uploads: {}: no such directory", d.display());
+        }
+    }
+    let options = ServeOptions {
+        latency: Duration::from_secs_f64(a.latency_ms / 1000.0),
+        uploads: a.uploads.clone(),
+        ..Default::default()
+    };
     let server = Server::start(files, SocketAddr::new(a.bind, a.port), options)?;
     for name in &names {
         if a.viewer {

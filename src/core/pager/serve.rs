@@ -103,6 +103,9 @@ pub struct ServeOptions {
     pub latency: Duration,
     /// Faults to inject; keep a clone of the `Arc` (or use [`Server::faults`]) to set them.
     pub faults: Arc<Faults>,
+    /// A directory taking uploads in the S3 style (see [`upload`]): `PUT` of an object, and the
+    /// multipart upload (create, parts, complete, abort); objects uploaded there are served.
+    pub uploads: Option<PathBuf>,
 }
 
 /// A running server; stops when dropped ([`Server::stop`]).

@@ -704,7 +704,40 @@ impl LevelRows for CoarseRows {
 /// Merges the shard files of one sharded conversion into the terrain file a single process
 /// would have written. Every shard `0..N` must be given once; a missing, duplicated, foreign
 /// (another conversion's) or damaged shard is an error naming it, and nothing is written.
-pub fn merge(shard_paths: &[PathBuf], output: &Path, progress: &Progress) -> Result<MergeReport> {
+///
+/// `output` is a path, or `s3://bucket/key` (with `s3`'s endpoint and credentials): then the file
+/// is assembled in place by a multipart upload whose parts are uploaded as they are made (the
+/// first, holding the header, last), so no machine holds the whole file; on an error the
+/// upload is aborted.
+pub fn merge(shard_paths: &[PathBuf], output: &str, s3: &crate::pager::remote::S3Config, progress: &Progress) -> Result<MergeReport> {
+    if output.starts_with("s3://") {
+        let mut up = crate::pager::upload::MultipartUpload::start(output, s3)?;
+        match merge_into(shard_paths, Out::Upload(&mut up, Vec::new(), 0), progress, output) {
+            Ok(r) => {
+                up.complete()?;
+                Ok(r)
+            }
+            Err(e) => {
+                up.abort();
+                Err(e)
+            }
+        }
+    } else {
+        merge_into(shard_paths, Out::File(Path::new(output)), progress, output)
+    }
+}
+
+/// Where the merge writes.
+enum Out<'a> {
+    File(&'a Path),
+    /// The upload, the part being filled, parts uploaded.
+    Upload(&'a mut crate::pager::upload::MultipartUpload, Vec<u8>, u16),
+}
+
+/// Bytes per uploaded part.
+const PART_BYTES: usize = 8 << 20;
+
+fn merge_into(shard_paths: &[PathBuf], out: Out<'_>, progress: &Progress, label: &str) -> Result<MergeReport> {
     let started = Instant::now();
     let sampler = AnonSampler::start();
     let Some(first_path) = shard_paths.first() else {
@@ -870,8 +903,18 @@ pub fn merge(shard_paths: &[PathBuf], output: &Path, progress: &Progress) -> Res
     let map_bytes = terrain::encode_page_map(&pages.runs());
     let map_pages = map_bytes.len() as u64 / 4096;
     let first_page = 1 + map_pages;
-    let out_tmp = crate::sys::atomic_file::temp_beside(output)?;
-    let out_file = out_tmp.reopen().at(output)?;
+    let mut out = out;
+    let local = match &out {
+        Out::File(output) => {
+            let out_tmp = crate::sys::atomic_file::temp_beside(output)?;
+            let out_file = out_tmp.reopen().at(output)?;
+            Some((out_tmp, out_file))
+        }
+        Out::Upload(..) => None,
+    };
+    // The first part holds the header page and the page map, written last.
+    let first_part = PART_BYTES.max(first_page as usize * 4096);
+    let mut part_one: Vec<u8> = vec![0; first_page as usize * 4096];
     let mut next_page = first_page;
     let bar = progress.bar("merge", pages.count, "pages");
     let fill = |first: u64, buf: &mut [Record]| {
@@ -899,7 +942,26 @@ pub fn merge(shard_paths: &[PathBuf], output: &Path, progress: &Progress) -> Res
     };
     let hashes = write_payload(layout.records(), &pages, &fill, &mut |bytes: &[u8]| {
         use std::os::unix::fs::FileExt;
-        out_file.write_all_at(bytes, next_page * 4096).at(output)?;
+        match (&mut out, &local) {
+            (Out::File(output), Some((_, file))) => file.write_all_at(bytes, next_page * 4096).at(output)?,
+            (Out::Upload(up, part, parts), _) => {
+                let mut bytes = bytes;
+                while !bytes.is_empty() {
+                    let (buf, cap) = if *parts == 0 { (&mut part_one, first_part) } else { (&mut *part, PART_BYTES) };
+                    let take = (cap - buf.len()).min(bytes.len());
+                    buf.extend_from_slice(&bytes[..take]);
+                    bytes = &bytes[take..];
+                    if buf.len() == cap {
+                        if *parts > 0 {
+                            up.part(*parts + 1, buf)?;
+                            buf.clear();
+                        }
+                        *parts += 1;
+                    }
+                }
+            }
+            _ => unreachable!("a local output has its file"),
+        }
         next_page += bytes.len().div_ceil(4096) as u64;
         bar.inc(bytes.len().div_ceil(4096) as u64);
         Ok(())
@@ -914,13 +976,27 @@ pub fn merge(shard_paths: &[PathBuf], output: &Path, progress: &Progress) -> Res
         payload_checksum: terrain::combine_block_hashes(&hashes),
         ..template
     };
-    let out_dir = match output.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
+    let file_bytes = match (out, local) {
+        (Out::File(output), Some((out_tmp, out_file))) => {
+            let out_dir = match output.parent() {
+                Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+                _ => PathBuf::from("."),
+            };
+            finish_file(out_tmp, out_file, output, &out_dir, &mut header, &map_bytes, next_page, None)?
+        }
+        (Out::Upload(up, part, parts), _) => {
+            part_one[..HEADER_BYTES].copy_from_slice(&Format::encode(&header).0);
+            part_one[4096..4096 + map_bytes.len()].copy_from_slice(&map_bytes);
+            up.part(1, &part_one)?;
+            if parts > 0 && !part.is_empty() {
+                up.part(parts + 1, &part)?;
+            }
+            next_page * 4096
+        }
+        _ => unreachable!("a local output has its file"),
     };
-    let file_bytes = finish_file(out_tmp, out_file, output, &out_dir, &mut header, &map_bytes, next_page, None)?;
     Ok(MergeReport {
-        output: output.display().to_string(),
+        output: label.to_string(),
         shards: count,
         records: runs.iter().map(|r| r.1).sum(),
         coarse_vertices: patches.len() as u64,
