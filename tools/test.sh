@@ -22,10 +22,20 @@ pkg-config --exists gdal 2>/dev/null || need+=(libgdal-dev pkg-config)
 # The web viewer's test opens its page in Debian's headless Chromium (WebGL2 on SwiftShader).
 { [ -x /usr/lib/chromium/chromium-headless-shell ] || [ -x /usr/lib/chromium/chromium ]; } ||
   need+=(chromium-headless-shell)
+# The sharded-conversion test runs tools/dask_convert.py on Dask (a venv where python3 lacks it).
+python3 -c 'import dask.distributed' 2>/dev/null || python3 -c 'import venv, ensurepip' 2>/dev/null ||
+  need+=(python3-venv)
 if [ ${#need[@]} -gt 0 ] && command -v apt-get >/dev/null; then
   sudo=""; [ "$(id -u)" -eq 0 ] || sudo="sudo"
   echo "tools/test.sh: installing ${need[*]}" >&2
   $sudo apt-get update -qq && DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${need[@]}" >/dev/null
+fi
+if ! python3 -c 'import dask.distributed' 2>/dev/null; then
+  if ! target/dask-venv/bin/python -c 'import dask.distributed' 2>/dev/null; then
+    echo "tools/test.sh: installing dask[distributed] into target/dask-venv" >&2
+    python3 -m venv target/dask-venv && target/dask-venv/bin/pip install --quiet 'dask[distributed]'
+  fi
+  export RELIEF_PYTHON="$PWD/target/dask-venv/bin/python"
 fi
 # Mesa warns when the runtime directory is missing.
 if [ -z "${XDG_RUNTIME_DIR:-}" ] || [ ! -d "$XDG_RUNTIME_DIR" ]; then

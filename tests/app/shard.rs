@@ -185,3 +185,49 @@ fn wrong_shards_are_one_line_errors_and_write_nothing() {
     fails_with(&args, "sharded conversion needs a DEM without nodata");
     assert!(!shard.exists());
 }
+
+#[test]
+fn the_dask_driver_converts_a_mosaic_into_the_test_bucket_and_fly_reads_it_there() {
+    use relief::pager::serve::{ServeOptions, Server};
+    let dir = tempfile::tempdir().unwrap();
+    let tiles = etopo_tiles(dir.path());
+    let want = dir.path().join("single.relief");
+    single(&tiles, "interleaved", &want);
+    let bucket = dir.path().join("bucket");
+    std::fs::create_dir(&bucket).unwrap();
+    let options = ServeOptions { uploads: Some(bucket.clone()), ..Default::default() };
+    let server = Server::start(vec![], "127.0.0.1:0".parse().unwrap(), options).unwrap();
+    let endpoint = server.url("").trim_end_matches('/').to_string();
+    let python = std::env::var("RELIEF_PYTHON").unwrap_or_else(|_| "python3".into());
+    let driver = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/dask_convert.py");
+    let o = Command::new(&python)
+        .arg(&driver)
+        .args(&tiles)
+        .args(["--out", "s3://dem/etopo.relief", "--shards", "4", "--workers", "2", "--json", "--relief"])
+        .arg(env!("CARGO_BIN_EXE_relief"))
+        .env("AWS_ENDPOINT_URL_S3", &endpoint)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr_of(&o));
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(summary["shard_reports"].as_array().unwrap().len(), 4, "{summary}");
+    // Assembled in the bucket by a multipart upload: the single-process bytes.
+    assert!(std::fs::read(bucket.join("dem/etopo.relief")).unwrap() == std::fs::read(&want).unwrap());
+    assert!(!bucket.join(".uploads").read_dir().unwrap().any(|_| true), "parts left behind");
+    // `relief fly` reads it from the bucket and ends on the local strip.
+    let path = dir.path().join("path.json");
+    crate::common::make_path("flyover", &want, 20, &path);
+    let fly = |target: &str| -> serde_json::Value {
+        let json = run_ok(
+            relief()
+                .env("AWS_ENDPOINT_URL_S3", &endpoint)
+                .env("RELIEF_CACHE_DIR", dir.path().join("cache"))
+                .args(["fly", target, "--no-render", "--tolerance", "2", "--json", "--path"])
+                .arg(&path),
+        );
+        serde_json::from_str(&json).unwrap()
+    };
+    let (here, there) = (fly(want.to_str().unwrap()), fly("s3://dem/etopo.relief"));
+    assert_eq!(there["summary"]["final_digest"], here["summary"]["final_digest"]);
+    assert!(server.log().iter().any(|l| l.name == "dem/etopo.relief" && l.method == "GET"));
+}

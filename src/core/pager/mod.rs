@@ -31,9 +31,9 @@ pub mod remote;
 #[cfg(feature = "serve")]
 pub mod serve;
 pub mod source;
+pub mod sparse;
 #[cfg(feature = "native")]
 pub mod upload;
-pub mod sparse;
 
 use std::ops::Deref;
 use std::sync::atomic::{AtomicU64, Ordering};

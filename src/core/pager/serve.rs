@@ -365,7 +365,14 @@ fn serve_connection(shared: &Shared, stream: &TcpStream) {
                 None => 0,
                 Some(Ok(n)) if n <= MAX_UPLOAD_BODY => n,
                 _ => {
-                    let _ = simple(&mut out, 413, "Content Too Large", false, false, "upload bodies need a Content-Length of at most 64 MiB");
+                    let _ = simple(
+                        &mut out,
+                        413,
+                        "Content Too Large",
+                        false,
+                        false,
+                        "upload bodies need a Content-Length of at most 64 MiB",
+                    );
                     return close(stream);
                 }
             };
@@ -1005,7 +1012,13 @@ fn upload(
             Ok(()) => reply(out, 200, "OK", &format!("ETag: \"{:016x}\"\r\n", xxhash_rust::xxh3::xxh3_64(body)), ""),
             Err(e) => err500(out, e),
         },
-        _ => reply(out, 405, "Method Not Allowed", "", "405: uploads are PUT, POST ?uploads / ?uploadId, DELETE ?uploadId\n"),
+        _ => reply(
+            out,
+            405,
+            "Method Not Allowed",
+            "",
+            "405: uploads are PUT, POST ?uploads / ?uploadId, DELETE ?uploadId\n",
+        ),
     }
 }
 

@@ -100,7 +100,8 @@ impl MultipartUpload {
         )
         .sign(SIGNED_FOR);
         let (etag, _) = self.send("PUT", url.as_str(), bytes, &format!("upload part {number}"))?;
-        let etag = etag.ok_or_else(|| Error::remote(&self.location, format!("part {number}: no ETag in the answer")))?;
+        let etag =
+            etag.ok_or_else(|| Error::remote(&self.location, format!("part {number}: no ETag in the answer")))?;
         let k = number as usize - 1;
         if self.etags.len() <= k {
             self.etags.resize(k + 1, None);

@@ -709,7 +709,12 @@ impl LevelRows for CoarseRows {
 /// is assembled in place by a multipart upload whose parts are uploaded as they are made (the
 /// first, holding the header, last), so no machine holds the whole file; on an error the
 /// upload is aborted.
-pub fn merge(shard_paths: &[PathBuf], output: &str, s3: &crate::pager::remote::S3Config, progress: &Progress) -> Result<MergeReport> {
+pub fn merge(
+    shard_paths: &[PathBuf],
+    output: &str,
+    s3: &crate::pager::remote::S3Config,
+    progress: &Progress,
+) -> Result<MergeReport> {
     if output.starts_with("s3://") {
         let mut up = crate::pager::upload::MultipartUpload::start(output, s3)?;
         match merge_into(shard_paths, Out::Upload(&mut up, Vec::new(), 0), progress, output) {
