@@ -158,7 +158,35 @@ fn file_len(kind: FileKind) -> u64 {
         FileKind::MetaNode => 8192 + 3 * 4096,
         FileKind::Pages => 1024 + 2 * 1024,
         FileKind::Imagery => 4096 + 11 * 256 * 256 * 4,
+        FileKind::Shard => shard_header().file_len,
     }
+}
+
+fn shard_header() -> relief_core::format::shard::ShardHeader {
+    let (sections, file_len) = relief_core::format::shard::ShardHeader::layout([100, 3, 7, 5, 9]);
+    relief_core::format::shard::ShardHeader {
+        shard: 2,
+        shards: 4,
+        block_bits: 6,
+        lattice_bits: 1,
+        blocks: 3,
+        z_min: 393.0,
+        z_max: 870.0,
+        sections,
+        body_checksum: 0x0123_4567_89ab_cdef,
+        file_len,
+    }
+}
+
+#[test]
+fn shard_headers_are_checked_as_every_format() {
+    use relief_core::format::shard::ShardHeader;
+    let h = shard_header();
+    assert_eq!(h.file_len, 512 + 100 * 12 + 3 * 16 + 7 * 16 + 5 * 20 + 9 * 12);
+    container_checks(&h, "s.shard");
+    corrupt_field::<ShardHeader>("s.shard", |b| b.put_u32(12, 4), "shard 4 of 4");
+    corrupt_field::<ShardHeader>("s.shard", |b| b.put_u64(64, 9000), "runs at 9000");
+    corrupt_field::<ShardHeader>("s.shard", |b| b.put_u64(56, 101), "runs at");
 }
 
 /// The container's checks, the same for every format: magic, version, checksum, size; each a
@@ -209,6 +237,7 @@ fn corrupt_field<F: Format + std::fmt::Debug>(name: &str, edit: impl Fn(&mut Hea
         FileKind::MetaNode => metanode_header().encode().0,
         FileKind::Pages => pages_header().encode().0,
         FileKind::Imagery => imagery_header().encode().0,
+        FileKind::Shard => shard_header().encode().0,
     });
     edit(&mut h);
     h.seal();

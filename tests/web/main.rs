@@ -343,7 +343,7 @@ fn bad_input_is_a_message_in_the_page() {
     // A server that ignores Range.
     let faults = Arc::new(Faults::default());
     faults.ignore_range.store(true, std::sync::atomic::Ordering::SeqCst);
-    let no_ranges = serve(files, ServeOptions { faults, latency: Duration::ZERO });
+    let no_ranges = serve(files, ServeOptions { faults, latency: Duration::ZERO, uploads: None });
     // A server on another origin that sends no CORS headers: Python's.
     let other = tempfile::tempdir().unwrap();
     std::fs::copy(&local, other.path().join("zurich.relief")).unwrap();

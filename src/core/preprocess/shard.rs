@@ -276,7 +276,7 @@ fn indices(layout: &AnyLayout, at: &[(u32, u32)]) -> Vec<u64> {
 
 /// The coarse lattice's posts along one axis: multiples of `g` below `len`, and `len − 1`.
 fn lattice_posts(len: u32, g: u32) -> u32 {
-    (len - 1) / g + 1 + ((len - 1) % g != 0) as u32
+    (len - 1) / g + 1 + !(len - 1).is_multiple_of(g) as u32
 }
 
 fn lattice_post_index(p: u32, g: u32, count: u32) -> u32 {
