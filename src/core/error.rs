@@ -169,7 +169,7 @@ impl FileKind {
             FileKind::MetaNode => "meta-node file",
             FileKind::Pages => "page file",
             FileKind::Imagery => "imagery tile file",
-            FileKind::Shard => "conversion shard",
+            FileKind::Shard => "conversion shard file",
         }
     }
 
