@@ -2,8 +2,10 @@
 //! (Eurographics 2000, §3.1.2), with a redb B-tree of edges keyed by the collapse metric.
 //!
 //! 1. Ingest: every input vertex (state: position, quadric, switch, radius, leaves; and its
-//!    triangle ids), every triangle (current and input corners) and every edge (key: metric,
-//!    then ids; see [`EdgeKey`]) go into a scratch redb database beside the output. The leaves'
+//!    triangle ids) and every triangle (current and input corners) go into dense record files
+//!    ([`super::dense`]: ids are dense, so a record is one positioned read, no tree), and every
+//!    edge (key: metric, then ids; see [`EdgeKey`]) into a scratch redb database beside the
+//!    output. The leaves'
 //!    node records go to a scratch node file. This step holds the whole input mesh (the mesh
 //!    readers read whole files); the mesh is dropped before the budgeted build starts.
 //! 2. A batch, in one write transaction ([`Region::run`]):
@@ -23,7 +25,7 @@
 //!      same bytes as an unlimited one.
 //!    - New node records and the triangles that die at each node are appended to scratch files
 //!      in id order; the left-over edges (with their current keys), rejected edges and vertex
-//!      and triangle states go back into redb.
+//!      and triangle states go back into redb and the record files.
 //! 3. Repeat until the B-tree is empty. With a budget that holds the whole mesh, the first batch
 //!    loads everything: the "unlimited" build is the same code with one batch.
 //! 4. Assemble: the node file is mapped and the children's `parent` fields patched, then header,
@@ -52,9 +54,10 @@ use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use redb::{Database, Durability, ReadableDatabase, ReadableTable, ReadableTableMetadata, Table, TableDefinition};
+use redb::{Database, Durability, ReadableTable, Table, TableDefinition};
 use serde::Serialize;
 
+use super::dense::DenseRecords;
 use super::simplify::{
     add_quadrics, collapse_options, cost, plane_quadric, EdgeKey, Quadric, Region, Store, VertexState,
 };
@@ -69,13 +72,6 @@ use crate::sys::scratch::ScratchMap;
 const EDGES: TableDefinition<u128, ()> = TableDefinition::new("edges");
 /// Rejected edges, both orientations: `a << 32 | b`.
 const REJECTED: TableDefinition<u64, ()> = TableDefinition::new("rejected");
-/// Current vertices: state ([`STATE_BYTES`]) then live triangle ids (u32 LE).
-const VERTICES: TableDefinition<u32, &[u8]> = TableDefinition::new("vertices");
-/// Live triangles: current corners, then input corners.
-const TRIANGLES: TableDefinition<u32, [u32; 6]> = TableDefinition::new("triangles");
-
-/// Bytes of a vertex state record: position, quadric, switch, radius (f64), leaves (u32).
-const STATE_BYTES: usize = 8 * (3 + 10 + 2) + 4;
 /// Buffer of each scratch output file, bytes.
 const WRITER_BYTES: usize = 16 << 10;
 /// The smallest redb cache, bytes.
@@ -229,7 +225,8 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
     let db = Database::builder().set_cache_size(cache_bytes as usize).create(&db_path).db(&db_path)?;
     let mut out = Output::new(scratch.path())?;
 
-    let edges = ingest(&mesh, &db, &db_path, &mut out, options.metric)?;
+    let mut records = DenseRecords::new(scratch.path(), n as u32, t as u32)?;
+    let edges = ingest(&mesh, &db, &db_path, &mut records, &mut out, options.metric)?;
     let mesh_bytes = n as u64 * 24 + t as u64 * 12;
     drop(mesh);
     release_freed_memory();
@@ -244,6 +241,7 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
         db: &db,
         db_path: &db_path,
         out: &mut out,
+        records: &mut records,
         region: Region::new(
             options.metric,
             region_budget,
@@ -270,8 +268,7 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
     let nodes = builder.region.next_id() as u64;
     drop(builder);
 
-    let (dying, base, vdt_bytes) =
-        assemble(output, &db, &db_path, out, n as u64, nodes, t as u64, options.metric, bounds)?;
+    let (dying, base, vdt_bytes) = assemble(output, &records, out, n as u64, nodes, t as u64, options.metric, bounds)?;
     let peak_rss = sampler.finish();
     Ok(BuildReport {
         metric: options.metric,
@@ -385,35 +382,6 @@ impl<T, E: std::fmt::Display> ScratchContext<T> for std::result::Result<T, E> {
     }
 }
 
-fn encode_vertex(buf: &mut Vec<u8>, state: &VertexState, triangles: &[u32]) {
-    buf.clear();
-    for c in state.position.iter().chain(&state.quadric).chain([&state.switch, &state.radius]) {
-        buf.extend_from_slice(&c.to_le_bytes());
-    }
-    buf.extend_from_slice(&state.leaves.to_le_bytes());
-    for t in triangles {
-        buf.extend_from_slice(&t.to_le_bytes());
-    }
-}
-
-fn decode_state(bytes: &[u8]) -> Option<VertexState> {
-    if bytes.len() < STATE_BYTES || !(bytes.len() - STATE_BYTES).is_multiple_of(4) {
-        return None;
-    }
-    let f = |k: usize| f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().unwrap_or_default());
-    Some(VertexState {
-        position: [f(0), f(1), f(2)],
-        quadric: std::array::from_fn(|k| f(3 + k)),
-        switch: f(13),
-        radius: f(14),
-        leaves: u32::from_le_bytes(bytes[120..124].try_into().unwrap_or_default()),
-    })
-}
-
-fn decode_triangles(bytes: &[u8]) -> impl Iterator<Item = u32> + '_ {
-    bytes[STATE_BYTES.min(bytes.len())..].chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-}
-
 /// The scratch output: node records and dying triangles, appended in id order.
 struct Output {
     nodes: BufWriter<File>,
@@ -443,7 +411,14 @@ impl Output {
 }
 
 /// Step 1: the scratch database and the leaves' node records. Returns the number of edges.
-fn ingest(mesh: &Mesh, db: &Database, db_path: &Path, out: &mut Output, metric: VdtMetric) -> Result<usize> {
+fn ingest(
+    mesh: &Mesh,
+    db: &Database,
+    db_path: &Path,
+    records: &mut DenseRecords,
+    out: &mut Output,
+    metric: VdtMetric,
+) -> Result<usize> {
     let n = mesh.positions.len();
     // Vertex → triangle adjacency (CSR).
     let mut first = vec![0u32; n + 1];
@@ -478,20 +453,11 @@ fn ingest(mesh: &Mesh, db: &Database, db_path: &Path, out: &mut Output, metric: 
     };
     let state = |v: usize| VertexState::leaf(mesh.positions[v], quadrics.get(v).copied().unwrap_or([0.0; 10]));
 
+    records.ingest((0..n).map(|v| (state(v), tris_of(v))), mesh.triangles.iter().copied())?;
     let mut txn = db.begin_write().db(db_path)?;
     txn.set_durability(Durability::None).db(db_path)?;
     let mut edges = 0;
     {
-        let mut vertices = txn.open_table(VERTICES).db(db_path)?;
-        let mut buf = Vec::new();
-        for v in 0..n {
-            encode_vertex(&mut buf, &state(v), tris_of(v));
-            vertices.insert(v as u32, buf.as_slice()).db(db_path)?;
-        }
-        let mut triangles = txn.open_table(TRIANGLES).db(db_path)?;
-        for (t, &[a, b, c]) in mesh.triangles.iter().enumerate() {
-            triangles.insert(t as u32, [a, b, c, a, b, c]).db(db_path)?;
-        }
         let mut table = txn.open_table(EDGES).db(db_path)?;
         let mut nbrs = Vec::new();
         for v in 0..n {
@@ -528,6 +494,7 @@ struct Builder<'a> {
     db: &'a Database,
     db_path: &'a Path,
     out: &'a mut Output,
+    records: &'a mut DenseRecords,
     region: Region,
     /// [`Region::run`]'s spanning phase stops at this fraction of the region's budget.
     span_fraction: f64,
@@ -549,10 +516,8 @@ impl Builder<'_> {
                 path: db_path,
                 edges: txn.open_table(EDGES).db(db_path)?,
                 rejected: txn.open_table(REJECTED).db(db_path)?,
-                vertices: txn.open_table(VERTICES).db(db_path)?,
-                triangles: txn.open_table(TRIANGLES).db(db_path)?,
+                records: &mut *self.records,
                 out: &mut *self.out,
-                buf: Vec::new(),
             };
             if disk.pending_min()?.is_none() {
                 return Ok(false);
@@ -573,40 +538,21 @@ struct Disk<'t> {
     path: &'t Path,
     edges: Table<'t, u128, ()>,
     rejected: Table<'t, u64, ()>,
-    vertices: Table<'t, u32, &'static [u8]>,
-    triangles: Table<'t, u32, [u32; 6]>,
+    records: &'t mut DenseRecords,
     out: &'t mut Output,
-    buf: Vec<u8>,
-}
-
-impl Disk<'_> {
-    fn missing(&self, what: String) -> Error {
-        Error::Scratch { path: self.path.to_path_buf(), problem: format!("{what} is missing") }
-    }
 }
 
 impl Store for Disk<'_> {
     fn vertex(&mut self, v: u32) -> Result<(VertexState, Vec<u32>)> {
-        let Some(rec) = self.vertices.get(v).db(self.path)? else {
-            return Err(self.missing(format!("vertex {v}")));
-        };
-        let bytes = rec.value();
-        let state = decode_state(bytes).ok_or_else(|| self.missing(format!("a valid record of vertex {v}")))?;
-        Ok((state, decode_triangles(bytes).collect()))
+        self.records.vertex(v)
     }
 
     fn vertex_state(&mut self, v: u32) -> Result<VertexState> {
-        let Some(rec) = self.vertices.get(v).db(self.path)? else {
-            return Err(self.missing(format!("vertex {v}")));
-        };
-        decode_state(rec.value()).ok_or_else(|| self.missing(format!("a valid record of vertex {v}")))
+        self.records.vertex_state(v)
     }
 
     fn triangle(&mut self, t: u32) -> Result<Option<([u32; 3], [u32; 3])>> {
-        Ok(self.triangles.get(t).db(self.path)?.map(|g| {
-            let [a, b, c, la, lb, lc] = g.value();
-            ([a, b, c], [la, lb, lc])
-        }))
+        self.records.triangle(t)
     }
 
     fn take_pending(&mut self, key: EdgeKey) -> Result<bool> {
@@ -643,24 +589,19 @@ impl Store for Disk<'_> {
     }
 
     fn put_vertex(&mut self, v: u32, state: &VertexState, triangles: &[u32]) -> Result<()> {
-        encode_vertex(&mut self.buf, state, triangles);
-        self.vertices.insert(v, self.buf.as_slice()).db(self.path)?;
-        Ok(())
+        self.records.put_vertex(v, state, triangles)
     }
 
     fn put_triangle(&mut self, t: u32, c: [u32; 3], l: [u32; 3]) -> Result<()> {
-        self.triangles.insert(t, [c[0], c[1], c[2], l[0], l[1], l[2]]).db(self.path)?;
-        Ok(())
+        self.records.put_triangle(t, c, l)
     }
 
     fn remove_vertex(&mut self, v: u32) -> Result<()> {
-        self.vertices.remove(v).db(self.path)?;
-        Ok(())
+        self.records.remove_vertex(v)
     }
 
     fn remove_triangle(&mut self, t: u32) -> Result<()> {
-        self.triangles.remove(t).db(self.path)?;
-        Ok(())
+        self.records.remove_triangle(t)
     }
 
     fn emit(&mut self, node: &VdtNode, dying: &[[u32; 3]]) -> Result<()> {
@@ -680,8 +621,7 @@ impl Store for Disk<'_> {
 #[allow(clippy::too_many_arguments, reason = "internal; each argument is a distinct input")]
 fn assemble(
     output: &Path,
-    db: &Database,
-    db_path: &Path,
+    records: &DenseRecords,
     out: Output,
     leaves: u64,
     nodes: u64,
@@ -714,12 +654,10 @@ fn assemble(
             }
         }
     }
-    let read = db.begin_read().db(db_path)?;
-    let live = read.open_table(TRIANGLES).db(db_path)?;
-    let base = live.len().db(db_path)?;
+    let base = records.live_triangles();
     if triangles_written + base != triangles {
         return Err(Error::Scratch {
-            path: db_path.to_path_buf(),
+            path: dir,
             problem: format!("{triangles_written} dying and {base} base triangles for {triangles} input triangles"),
         });
     }
@@ -733,10 +671,8 @@ fn assemble(
         if copied != triangles_written * 12 {
             return Err(std::io::Error::other("scratch triangle file is short"));
         }
-        for entry in live.range::<u32>(..).map_err(std::io::Error::other)? {
-            let (_, v) = entry.map_err(std::io::Error::other)?;
-            let [_, _, _, a, b, c] = v.value();
-            w.write_all(bytemuck::cast_slice(&[a, b, c]))?;
+        if records.write_live_triangles(w)? != base {
+            return Err(std::io::Error::other("scratch triangle records changed"));
         }
         Ok(())
     })?;

@@ -47,6 +47,7 @@ pub mod source;
 
 pub mod build;
 pub mod collapse;
+mod dense;
 pub mod simplify;
 
 pub use crate::format::vdt::{VdtFile, VdtHeader, VdtMetric, VdtNode, VdtTriangle, NONE};
