@@ -1,12 +1,12 @@
-//! The out-of-core build's vertex and triangle records ([`super::build`]), by dense id in two
+//! The out-of-core build's vertex and triangle records ([`super::build`]), by dense id in three
 //! unlinked scratch files read and written with positioned I/O.
 //!
 //! Vertex and triangle ids are dense (vertices: the n leaves, then one per collapse, below 2n;
-//! triangles 0..t) and never reused, so they need no search tree:
-//! record `i` sits at byte `i · size`. One `pread` of a record replaces a B-tree descent through
-//! pages that at a small budget are rarely in redb's cache (profiled: two thirds of an out-of-core
-//! batch went to the vertex and triangle tables). The kernel's page cache holds the files as it
-//! holds redb's, outside the build's memory; the edge B-tree, which needs order, stays in redb.
+//! triangles 0..t) and never reused, so they need no search tree: record `i` sits at byte
+//! `i · size`. One `pread` of a record replaces a B-tree descent through pages that at a small
+//! budget are rarely in redb's cache (profiled: nearly half of an out-of-core batch went to the
+//! vertex and triangle tables). The kernel's page cache holds the files as it holds redb's,
+//! outside the build's memory; the edge B-tree, which needs order, stays in redb.
 //!
 //! - `vertices`: per vertex, its state ([`STATE_BYTES`]), one more than the length of its
 //!   triangle list (0: never written, the file's hole; [`DEAD`] once collapsed) and the list's
@@ -255,5 +255,46 @@ impl DenseRecords {
             at += part.len() as u64;
         }
         Ok(live)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state(x: f64) -> VertexState {
+        VertexState { position: [x, 2.0 * x, 3.0 * x], quadric: [x; 10], switch: x, radius: 0.5 * x, leaves: 1 }
+    }
+
+    #[test]
+    fn records_read_back_as_written_and_dead_or_unwritten_ones_are_missing() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut r = DenseRecords::new(dir.path(), 3, 2).unwrap();
+        let lists: [&[u32]; 3] = [&[0], &[0, 1], &[1]];
+        r.ingest((0..3).map(|v| (state(v as f64), lists[v])), [[0, 1, 2], [2, 1, 0]].into_iter()).unwrap();
+        assert_eq!(r.vertex(1).unwrap(), (state(1.0), vec![0, 1]));
+        assert_eq!(r.vertex_state(2).unwrap(), state(2.0));
+        assert_eq!(r.triangle(1).unwrap(), Some(([2, 1, 0], [2, 1, 0])));
+        // A collapse: vertex 3 is new, 0 and 1 go, triangle 0 dies, 1 is renamed.
+        r.put_vertex(3, &state(7.0), &[1]).unwrap();
+        r.put_triangle(1, [2, 3, 3], [2, 1, 0]).unwrap();
+        r.remove_vertex(0).unwrap();
+        r.remove_triangle(0).unwrap();
+        assert_eq!(r.vertex(3).unwrap(), (state(7.0), vec![1]));
+        assert_eq!(r.triangle(0).unwrap(), None);
+        assert_eq!(r.triangle(1).unwrap(), Some(([2, 3, 3], [2, 1, 0])));
+        assert!(r.vertex(0).unwrap_err().to_string().contains("vertex 0 is missing"));
+        // Vertex 4 is past the file's end; once 5 is written, 4 is a hole: missing either way.
+        assert!(r.vertex_state(4).unwrap_err().to_string().contains("vertex 4 is missing"));
+        r.put_vertex(5, &state(9.0), &[]).unwrap();
+        assert!(r.vertex_state(4).unwrap_err().to_string().contains("vertex 4 is missing"));
+        assert_eq!(r.vertex(5).unwrap(), (state(9.0), vec![]));
+        // Ids stop below twice the leaves.
+        assert!(r.put_vertex(6, &state(1.0), &[]).is_err());
+        assert!(r.triangle(2).unwrap_err().to_string().contains("triangle 2 is missing"));
+        assert_eq!(r.live_triangles(), 1);
+        let mut out = Vec::new();
+        assert_eq!(r.write_live_triangles(&mut out).unwrap(), 1);
+        assert_eq!(out, bytemuck::cast_slice::<u32, u8>(&[2, 1, 0]));
     }
 }
