@@ -5,8 +5,7 @@
 //!    triangle ids) and every triangle (current and input corners) go into dense record files
 //!    ([`super::dense`]: ids are dense, so a record is one positioned read, no tree), and every
 //!    edge (key: metric, then ids; see [`EdgeKey`]) into a scratch redb database beside the
-//!    output. The leaves'
-//!    node records go to a scratch node file. This step holds the whole input mesh (the mesh
+//!    output. The leaves' node records go to a scratch node file. This step holds the whole input mesh (the mesh
 //!    readers read whole files); the mesh is dropped before the budgeted build starts.
 //! 2. A batch, in one write transaction ([`Region::run`]):
 //!    - Spanning: take the smallest edges out of the B-tree as *spanning edges*, loading each

@@ -60,6 +60,14 @@ fn encode_state(buf: &mut Vec<u8>, state: &VertexState) {
     buf.extend_from_slice(&state.leaves.to_le_bytes());
 }
 
+/// A vertex record: the state, one more than the list's length, the list's offset.
+fn encode_vertex(buf: &mut Vec<u8>, state: &VertexState, list_len: usize, list_at: u64) {
+    buf.clear();
+    encode_state(buf, state);
+    buf.extend_from_slice(&(list_len as u32 + 1).to_le_bytes());
+    buf.extend_from_slice(&list_at.to_le_bytes());
+}
+
 fn decode_state(bytes: &[u8; VERTEX_BYTES]) -> VertexState {
     let f = |k: usize| f64::from_le_bytes(bytes[8 * k..8 * k + 8].try_into().unwrap_or_default());
     VertexState {
@@ -111,10 +119,7 @@ impl DenseRecords {
             for t in tris {
                 list_out.write_all(&t.to_le_bytes()).at(dir)?;
             }
-            rec.clear();
-            encode_state(&mut rec, &state);
-            rec.extend_from_slice(&(tris.len() as u32 + 1).to_le_bytes());
-            rec.extend_from_slice(&end.to_le_bytes());
+            encode_vertex(&mut rec, &state, tris.len(), end);
             vertex_out.write_all(&rec).at(dir)?;
             end += 4 * tris.len() as u64;
             nv += 1;
@@ -193,6 +198,9 @@ impl DenseRecords {
 
     /// Stores a vertex's state and its triangle list (appended to `lists`).
     pub fn put_vertex(&mut self, v: u32, state: &VertexState, triangles: &[u32]) -> Result<()> {
+        if v >= self.vertex_count {
+            return Err(self.missing(format!("room for vertex {v}")));
+        }
         self.buf.clear();
         for t in triangles {
             self.buf.extend_from_slice(&t.to_le_bytes());
@@ -200,13 +208,7 @@ impl DenseRecords {
         self.lists.write_all_at(&self.buf, self.lists_end).at(&self.dir)?;
         let at = self.lists_end;
         self.lists_end += self.buf.len() as u64;
-        self.buf.clear();
-        encode_state(&mut self.buf, state);
-        self.buf.extend_from_slice(&(triangles.len() as u32 + 1).to_le_bytes());
-        self.buf.extend_from_slice(&at.to_le_bytes());
-        if v >= self.vertex_count {
-            return Err(self.missing(format!("room for vertex {v}")));
-        }
+        encode_vertex(&mut self.buf, state, triangles.len(), at);
         let at = v as u64 * VERTEX_BYTES as u64;
         self.vertices.write_all_at(&self.buf, at).at(&self.dir)?;
         self.vertices_end = self.vertices_end.max(at + VERTEX_BYTES as u64);
@@ -243,8 +245,8 @@ impl DenseRecords {
         let total = self.triangle_count as u64 * TRIANGLE_BYTES as u64;
         let (mut at, mut live) = (0u64, 0u64);
         while at < total {
-            let part = &mut chunk
-                [..(total - at).min(STREAM_BYTES as u64 / TRIANGLE_BYTES as u64 * TRIANGLE_BYTES as u64) as usize];
+            let len = (total - at).min(chunk.len() as u64) as usize;
+            let part = &mut chunk[..len];
             self.triangles.read_exact_at(part, at)?;
             for rec in part.chunks_exact(TRIANGLE_BYTES) {
                 if u32_at(rec, 0) != DEAD {
