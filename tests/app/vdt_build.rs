@@ -437,12 +437,12 @@ fn forest_is_well_formed() {
 #[test]
 fn quadric_metric_batched_equals_unlimited() {
     let full = build_lib("bunny.off", 1 << 30, VdtMetric::Quadric);
-    let small = build_lib("bunny.off", 12 << 20, VdtMetric::Quadric);
+    let small = build_lib("bunny.off", 6 << 20, VdtMetric::Quadric);
     assert!(small.report.batches >= 3, "{:?}", small.report);
     assert!(std::fs::read(&small.path).unwrap() == std::fs::read(&full.path).unwrap(), "bunny quadric: builds differ");
     let vdt = VdtFile::open(&small.path).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(vdt.metric(), VdtMetric::Quadric);
-    check_well_formed(&vdt, &small.mesh, &small.report, "bunny quadric in 12 MiB");
+    check_well_formed(&vdt, &small.mesh, &small.report, "bunny quadric in 6 MiB");
 }
 
 #[test]

@@ -42,7 +42,9 @@
 //! # Memory
 //! The budget covers: the redb page cache (an eighth of the budget, at least 32 KiB and at most
 //! 256 MiB), the two scratch file buffers (16 KiB each), the union–find and the region
-//! ([`Region::used_bytes`], with head-room for the collapse phase, [`Region::committed_bytes`]).
+//! ([`Region::used_bytes`], with head-room for the collapse phase, [`Region::committed_bytes`]),
+//! and one bit per node id marking the vertices that may have rejected edges in the store (when
+//! those bits take at most an eighth of the region's share; else every lookup goes to redb).
 //! `peak_accounted_bytes` is the sum of those at their peaks, the cache counted as what it could
 //! hold (its size, or the database file's if that is smaller). The sampled peak of anonymous
 //! resident memory of the build phase (after ingest) is reported beside it; it also holds what no
@@ -234,7 +236,10 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
     let baseline = crate::sys::mem::rss_anon_bytes().unwrap_or(0);
     let sampler = crate::sys::mem::AnonSampler::start();
     let build_start = Instant::now();
-    let region_budget = budget - fixed;
+    // The rejected-id bits, if they take at most an eighth of the region's share.
+    let bits_bytes = (2 * n as u64).div_ceil(64) * 8;
+    let bits_fit = bits_bytes <= (budget - fixed) / 8;
+    let region_budget = budget - fixed - if bits_fit { bits_bytes } else { 0 };
     let max_heap = (2 * edges + 256).min((region_budget / cost::HEAP_ENTRY) as usize);
     let mut builder = Builder {
         db: &db,
@@ -252,6 +257,8 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
         span_fraction: options.span_fraction,
         batches: 0,
         max_db_bytes: std::fs::metadata(&db_path).map_or(0, |m| m.len()),
+        min_pending: None,
+        may_have_rejected: bits_fit.then(|| vec![0; bits_bytes as usize / 8]),
     };
     let bar = options.progress.bar("vdt build", n.saturating_sub(1) as u64, "collapses");
     while builder.batch()? {
@@ -262,7 +269,10 @@ fn build_vdt_timed(mesh: Mesh, output: &Path, options: &BuildOptions, start: Ins
     let stats = builder.region.stats();
     // The cache cannot hold more than the database's pages: count what it could hold.
     let db_bytes = builder.max_db_bytes.max(std::fs::metadata(&db_path).map_or(0, |m| m.len()));
-    let peak_accounted = fixed - cache_bytes + cache_bytes.min(db_bytes) + builder.region.peak_bytes();
+    let peak_accounted = fixed - cache_bytes
+        + cache_bytes.min(db_bytes)
+        + if bits_fit { bits_bytes } else { 0 }
+        + builder.region.peak_bytes();
     let batches = builder.batches;
     let nodes = builder.region.next_id() as u64;
     drop(builder);
@@ -500,6 +510,12 @@ struct Builder<'a> {
     batches: u64,
     /// The scratch database's largest size after a batch, bytes.
     max_db_bytes: u64,
+    /// The store's smallest pending edge, when known ([`Disk::pending_min`]).
+    min_pending: Option<Option<EdgeKey>>,
+    /// One bit per node id: set once the id has rejected edges in the store, cleared when they
+    /// are taken out. A clear bit answers [`Store::take_rejected`] without a B-tree descent
+    /// (about 1% of edges are ever rejected, and a load or collapse asks for several vertices).
+    may_have_rejected: Option<Vec<u64>>,
 }
 
 impl Builder<'_> {
@@ -517,6 +533,8 @@ impl Builder<'_> {
                 rejected: txn.open_table(REJECTED).db(db_path)?,
                 records: &mut *self.records,
                 out: &mut *self.out,
+                min_pending: &mut self.min_pending,
+                may_have_rejected: self.may_have_rejected.as_deref_mut(),
             };
             if disk.pending_min()?.is_none() {
                 return Ok(false);
@@ -539,6 +557,8 @@ struct Disk<'t> {
     rejected: Table<'t, u64, ()>,
     records: &'t mut DenseRecords,
     out: &'t mut Output,
+    min_pending: &'t mut Option<Option<EdgeKey>>,
+    may_have_rejected: Option<&'t mut [u64]>,
 }
 
 impl Store for Disk<'_> {
@@ -555,19 +575,40 @@ impl Store for Disk<'_> {
     }
 
     fn take_pending(&mut self, key: EdgeKey) -> Result<bool> {
-        Ok(self.edges.remove(key).db(self.path)?.is_some())
+        let taken = self.edges.remove(key).db(self.path)?.is_some();
+        if taken && *self.min_pending == Some(Some(key)) {
+            *self.min_pending = None;
+        }
+        Ok(taken)
     }
 
     fn put_pending(&mut self, key: EdgeKey) -> Result<()> {
         self.edges.insert(key, ()).db(self.path)?;
+        if let Some(min) = self.min_pending {
+            *min = Some(min.map_or(key, |m| m.min(key)));
+        }
         Ok(())
     }
 
+    /// Cached between calls: only [`Self::take_pending`] of the minimum itself makes it unknown.
     fn pending_min(&mut self) -> Result<Option<EdgeKey>> {
-        Ok(self.edges.first().db(self.path)?.map(|(k, _)| k.value()))
+        if let Some(min) = *self.min_pending {
+            return Ok(min);
+        }
+        let min = self.edges.first().db(self.path)?.map(|(k, _)| k.value());
+        *self.min_pending = Some(min);
+        Ok(min)
     }
 
     fn take_rejected(&mut self, v: u32, others: &mut Vec<u32>) -> Result<()> {
+        if let Some(bits) = self.may_have_rejected.as_deref_mut() {
+            let (word, bit) = (v as usize / 64, 1u64 << (v % 64));
+            match bits.get_mut(word) {
+                Some(w) if *w & bit == 0 => return Ok(()),
+                Some(w) => *w &= !bit, // all of v's entries are taken below
+                None => {}
+            }
+        }
         let from = others.len();
         let lo = (v as u64) << 32;
         for entry in self.rejected.range(lo..=lo | u32::MAX as u64).db(self.path)? {
@@ -582,6 +623,13 @@ impl Store for Disk<'_> {
     }
 
     fn put_rejected(&mut self, a: u32, b: u32) -> Result<()> {
+        if let Some(bits) = self.may_have_rejected.as_deref_mut() {
+            for x in [a, b] {
+                if let Some(w) = bits.get_mut(x as usize / 64) {
+                    *w |= 1 << (x % 64);
+                }
+            }
+        }
         self.rejected.insert((a as u64) << 32 | b as u64, ()).db(self.path)?;
         self.rejected.insert((b as u64) << 32 | a as u64, ()).db(self.path)?;
         Ok(())
